@@ -1,0 +1,139 @@
+//! `.npy` reading and writing with errors that name the file and what was expected.
+//!
+//! The header is inspected before the data is read because ndarray-npy allocates
+//! the full array the header announces: a corrupted shape must not turn into a
+//! huge allocation, and a wrong dtype deserves a message naming the expected one.
+
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+use ndarray::{ArrayBase, DataOwned, Dimension};
+use ndarray_npy::npy::header::Header;
+use ndarray_npy::{ReadNpyExt, ReadableElement, WritableElement, WriteNpyExt};
+
+use crate::error::{BundleError, Result};
+
+/// An element type used in bundles, with the numpy descriptors ndarray-npy accepts for it.
+pub trait BundleElement: ReadableElement + WritableElement {
+    /// numpy name, for messages.
+    const DTYPE_NAME: &'static str;
+    const DESCRIPTORS: &'static [&'static str];
+    const ITEM_SIZE: usize;
+}
+
+impl BundleElement for f32 {
+    const DTYPE_NAME: &'static str = "float32 ('<f4')";
+    const DESCRIPTORS: &'static [&'static str] = &["<f4", ">f4"];
+    const ITEM_SIZE: usize = 4;
+}
+
+impl BundleElement for bool {
+    const DTYPE_NAME: &'static str = "bool ('|b1')";
+    const DESCRIPTORS: &'static [&'static str] = &["|b1"];
+    const ITEM_SIZE: usize = 1;
+}
+
+/// Formats a shape like numpy does: `(5, 7, 3)`, `(4,)`.
+pub fn shape_string(shape: &[usize]) -> String {
+    match shape {
+        [single] => format!("({single},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Reads a `.npy` file whose dtype and number of dimensions must match `A` and `D`.
+pub fn read_npy_checked<A, S, D>(path: &Path) -> Result<ArrayBase<S, D>>
+where
+    A: BundleElement,
+    S: DataOwned<Elem = A>,
+    D: Dimension,
+{
+    let bytes = fs::read(path).map_err(|e| BundleError::io(path, "reading", &e))?;
+    let mut after_header: &[u8] = &bytes;
+    let header = Header::from_reader(&mut after_header).map_err(|e| {
+        BundleError::new(
+            path,
+            "header",
+            format!("cannot parse .npy header (truncated or not a .npy file): {e}"),
+        )
+    })?;
+
+    let descriptor = header.type_descriptor.as_string().map(String::as_str);
+    if !descriptor.is_some_and(|d| A::DESCRIPTORS.contains(&d)) {
+        return Err(BundleError::new(
+            path,
+            "dtype",
+            format!(
+                "expected {}, found {}",
+                A::DTYPE_NAME,
+                header.type_descriptor
+            ),
+        ));
+    }
+    if let Some(ndim) = D::NDIM
+        && header.shape.len() != ndim
+    {
+        return Err(BundleError::new(
+            path,
+            "shape",
+            format!(
+                "expected {ndim} dimensions, found shape {}",
+                shape_string(&header.shape)
+            ),
+        ));
+    }
+    let expected_bytes = header
+        .shape
+        .iter()
+        .try_fold(A::ITEM_SIZE, |acc, &dim| acc.checked_mul(dim))
+        .ok_or_else(|| {
+            BundleError::new(
+                path,
+                "shape",
+                format!("{} is too large", shape_string(&header.shape)),
+            )
+        })?;
+    let present_bytes = after_header.len();
+    if present_bytes != expected_bytes {
+        let what = if present_bytes < expected_bytes {
+            "truncated"
+        } else {
+            "has trailing bytes"
+        };
+        return Err(BundleError::new(
+            path,
+            "data",
+            format!(
+                "file is {what}: shape {} needs {expected_bytes} data bytes, found {present_bytes}",
+                shape_string(&header.shape)
+            ),
+        ));
+    }
+    ArrayBase::<S, D>::read_npy(bytes.as_slice())
+        .map_err(|e| BundleError::new(path, "data", e.to_string()))
+}
+
+/// Writes an array as a standard little-endian C-order `.npy` file.
+pub fn write_npy_file<A, S, D>(path: &Path, array: &ArrayBase<S, D>) -> Result<()>
+where
+    A: WritableElement,
+    S: ndarray::Data<Elem = A>,
+    D: Dimension,
+{
+    let file = fs::File::create(path).map_err(|e| BundleError::io(path, "creating", &e))?;
+    let mut writer = BufWriter::new(file);
+    array
+        .write_npy(&mut writer)
+        .map_err(|e| BundleError::new(path, "data", format!("writing .npy failed: {e}")))?;
+    writer
+        .flush()
+        .map_err(|e| BundleError::io(path, "writing", &e))
+}

@@ -1,0 +1,166 @@
+//! Simulation settings. One struct is both the run record saved beside
+//! outputs and the defaults of method.md §2.
+
+use serde::{Deserialize, Serialize};
+
+/// A ground plane: nodes at or below `height + margin` along `up` cannot
+/// move into it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FloorConfig {
+    /// Unit vector pointing up (away from the floor).
+    pub up: [f64; 3],
+    /// Height of the plane along `up`, metres (world frame).
+    pub height: f64,
+    /// Extra thickness of the collision layer, metres.
+    pub margin: f64,
+}
+
+/// Physical effects beyond the base model. The synthetic generator hides
+/// them in ground truth; the diagnosis stage adds them back as learnable
+/// terms. All zero / `None` means the base model of method.md.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Effects {
+    /// Linear air drag, 1/s: a = -k v.
+    pub air_drag_linear: f64,
+    /// Quadratic air drag, 1/m: a = -k |v| v.
+    pub air_drag_quadratic: f64,
+    /// Coulomb friction coefficient on the floor (0 = frictionless slip).
+    pub floor_friction: f64,
+    /// Plastic yield: singular values of F are projected into
+    /// [1/(1+y), 1+y], so deformation beyond y is permanent.
+    pub plastic_yield: Option<f64>,
+}
+
+/// Everything the MPM world needs besides particles, material and actuators.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PhysicsConfig {
+    /// Grid cells per axis.
+    pub grid_res: usize,
+    /// World position of grid node (0, 0, 0), metres.
+    pub domain_origin: [f64; 3],
+    /// Edge length of the cubic domain, metres.
+    pub domain_size: f64,
+    /// Substep, seconds.
+    pub dt: f64,
+    /// Substeps per video frame.
+    pub substeps_per_frame: usize,
+    /// Gravity, m/s^2, world frame.
+    pub gravity: [f64; 3],
+    /// Particle velocity damping rate, 1/s (v *= exp(-rate dt) per substep).
+    pub particle_damping: f64,
+    /// Grid velocity factor per substep.
+    pub grid_damping: f64,
+    /// Thickness of the slip walls at the domain faces, cells.
+    pub wall_cells: usize,
+    /// Particle positions are clipped to this fraction range of the domain.
+    pub position_clip: [f64; 2],
+    /// Optional ground plane.
+    pub floor: Option<FloorConfig>,
+    /// Singular values of F are clamped into this range every substep.
+    pub svd_clamp: [f64; 2],
+    /// Rest density of the material, kg/m^3.
+    pub density: f64,
+    /// Grid nodes lighter than this fraction of the mean particle mass are
+    /// treated as empty (their velocity division is ill-conditioned).
+    pub empty_node_mass_ratio: f64,
+    /// Extra physics (hidden effects / diagnosis extensions).
+    pub effects: Effects,
+}
+
+impl PhysicsConfig {
+    /// Defaults for thin objects (ropes: linear, cloths: planar), method.md §2.
+    pub fn thin_object(domain_origin: [f64; 3], domain_size: f64, up: [f64; 3]) -> Self {
+        Self::with_category_numbers(domain_origin, domain_size, up, 20.0, 0.0)
+    }
+
+    /// Defaults for volumetric objects (plush toys), method.md §2.
+    pub fn volumetric(domain_origin: [f64; 3], domain_size: f64, up: [f64; 3]) -> Self {
+        Self::with_category_numbers(domain_origin, domain_size, up, 5.0, 0.05)
+    }
+
+    fn with_category_numbers(
+        domain_origin: [f64; 3],
+        domain_size: f64,
+        up: [f64; 3],
+        particle_damping: f64,
+        floor_margin_fraction: f64,
+    ) -> Self {
+        let g = 9.8;
+        Self {
+            grid_res: 32,
+            domain_origin,
+            domain_size,
+            dt: 8e-4,
+            substeps_per_frame: 42,
+            gravity: [-g * up[0], -g * up[1], -g * up[2]],
+            particle_damping,
+            grid_damping: 0.999,
+            wall_cells: 3,
+            position_clip: [0.05, 0.95],
+            floor: Some(FloorConfig {
+                up,
+                height: 0.0,
+                margin: floor_margin_fraction * domain_size / 32.0,
+            }),
+            svd_clamp: [0.5, 2.0],
+            density: 1000.0,
+            empty_node_mass_ratio: 1e-4,
+            effects: Effects::default(),
+        }
+    }
+
+    /// Grid spacing, metres.
+    pub fn dx(&self) -> f64 {
+        self.domain_size / self.grid_res as f64
+    }
+
+    /// Checks the numbers a user could get wrong; names the field.
+    pub fn validate(&self) -> Result<(), crate::SimError> {
+        let bad = |field: &str, why: &str| {
+            Err(crate::SimError::InvalidConfig {
+                field: field.to_string(),
+                problem: why.to_string(),
+            })
+        };
+        if self.grid_res < 8 {
+            return bad("grid_res", "must be at least 8");
+        }
+        if !(self.domain_size.is_finite() && self.domain_size > 0.0) {
+            return bad("domain_size", "must be positive");
+        }
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return bad("dt", "must be positive");
+        }
+        if self.substeps_per_frame == 0 {
+            return bad("substeps_per_frame", "must be at least 1");
+        }
+        if 2 * self.wall_cells + 4 > self.grid_res {
+            return bad("wall_cells", "walls leave no interior");
+        }
+        let [lo, hi] = self.position_clip;
+        let min_clip = 1.5 / self.grid_res as f64;
+        if !(lo >= min_clip && hi <= 1.0 - min_clip && lo < hi) {
+            return bad(
+                "position_clip",
+                "must lie inside the grid by at least 1.5 cells so every stencil fits",
+            );
+        }
+        let [slo, shi] = self.svd_clamp;
+        if !(slo > 0.0 && slo <= 1.0 && shi >= 1.0) {
+            return bad("svd_clamp", "must satisfy 0 < low <= 1 <= high");
+        }
+        if !(self.density > 0.0) {
+            return bad("density", "must be positive");
+        }
+        if self.gravity.iter().any(|g| !g.is_finite()) {
+            return bad("gravity", "must be finite");
+        }
+        if let Some(floor) = &self.floor {
+            let n = (floor.up[0].powi(2) + floor.up[1].powi(2) + floor.up[2].powi(2)).sqrt();
+            if (n - 1.0).abs() > 1e-6 {
+                return bad("floor.up", "must be a unit vector");
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,146 @@
+//! Stage 2: particle-to-grid scatter of mass and APIC momentum.
+//!
+//! Parallel and deterministic without atomics: particles are bucketed by
+//! the grid block (BLOCK³ cells) holding their stencil base. A particle in
+//! block b writes only nodes inside b extended by 2 cells, so blocks whose
+//! indices have the same parity on every axis ("colour") never write the
+//! same node when BLOCK >= 2. Colours run one after another; blocks of one
+//! colour run in parallel; inside a block particles run in slot order. Each
+//! node therefore sums its contributions in an order that does not depend
+//! on the number of threads: results are bitwise identical for any pool.
+
+use crate::grid::{Grid, offsets, stencil, stencil_base};
+use crate::real::{Lane4, Real, Vec3};
+use crate::state::Consts;
+use crate::stress::{ImpulseInputs, particle_impulse};
+use rayon::prelude::*;
+
+/// Block edge in cells; 4 gives enough blocks per colour for a few
+/// threads at 32³ while keeping each block's particles cache resident.
+pub const BLOCK: usize = 4;
+
+/// Particles bucketed by block, rebuilt every substep (a counting sort).
+#[derive(Clone, Debug, Default)]
+pub struct BlockSchedule {
+    blocks_per_axis: usize,
+    key: Vec<u32>,
+    /// `block_start[b]..block_start[b + 1]` indexes `order` for block b.
+    block_start: Vec<u32>,
+    order: Vec<u32>,
+    colours: [Vec<u32>; 8],
+}
+
+impl BlockSchedule {
+    pub fn block_of<T: Real>(&self, x: &Vec3<T>, k: &Consts<T>) -> u32 {
+        let g = (x - k.origin) * k.inv_dx;
+        let b = |c: T| (stencil_base(c, k.res) / BLOCK) as u32;
+        let n = self.blocks_per_axis as u32;
+        (b(g.x) * n + b(g.y)) * n + b(g.z)
+    }
+
+    /// Buckets `x` by block. Slot order is kept inside each block.
+    pub fn rebuild<T: Real>(&mut self, x: &[Vec3<T>], k: &Consts<T>) {
+        self.blocks_per_axis = k.res.div_ceil(BLOCK);
+        let n_blocks = self.blocks_per_axis.pow(3);
+        self.key.resize(x.len(), 0);
+        let this = &*self;
+        let keys: Vec<u32> = x.par_iter().map(|p| this.block_of(p, k)).collect();
+        self.key = keys;
+        self.block_start.clear();
+        self.block_start.resize(n_blocks + 1, 0);
+        for &b in &self.key {
+            self.block_start[b as usize + 1] += 1;
+        }
+        for b in 0..n_blocks {
+            self.block_start[b + 1] += self.block_start[b];
+        }
+        let mut cursor: Vec<u32> = self.block_start[..n_blocks].to_vec();
+        self.order.resize(x.len(), 0);
+        for (p, &b) in self.key.iter().enumerate() {
+            let c = &mut cursor[b as usize];
+            self.order[*c as usize] = p as u32;
+            *c += 1;
+        }
+        let n = self.blocks_per_axis;
+        for colour in &mut self.colours {
+            colour.clear();
+        }
+        for b in 0..n_blocks {
+            if self.block_start[b] == self.block_start[b + 1] {
+                continue;
+            }
+            let (bx, by, bz) = (b / (n * n), (b / n) % n, b % n);
+            let colour = (bx & 1) << 2 | (by & 1) << 1 | (bz & 1);
+            self.colours[colour].push(b as u32);
+        }
+    }
+
+    /// Slots sorted by block (a spatially coherent particle order).
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    fn particles_of(&self, block: u32) -> &[u32] {
+        let b = block as usize;
+        &self.order[self.block_start[b] as usize..self.block_start[b + 1] as usize]
+    }
+}
+
+/// A raw pointer to grid nodes shared by the blocks of one colour.
+struct NodesPtr<L>(*mut L);
+// SAFETY: the colouring argument in the module docs guarantees that tasks
+// running concurrently write disjoint nodes.
+unsafe impl<T> Send for NodesPtr<T> {}
+unsafe impl<T> Sync for NodesPtr<T> {}
+
+/// Scatters mass and momentum (`momentum + affine · (x_node − x_p)`) of
+/// every particle to its 27 stencil nodes. `grid` must be cleared.
+pub fn p2g<T: Real>(
+    k: &Consts<T>,
+    schedule: &BlockSchedule,
+    inputs: &ImpulseInputs<'_, T>,
+    grid: &mut Grid<T>,
+) {
+    let res = k.res;
+    assert_eq!(grid.nodes.len(), res * res * res, "grid size mismatch");
+    let x = &inputs.particles.x;
+    let mass = &inputs.particles.mass;
+    let nodes = NodesPtr(grid.nodes.as_mut_ptr());
+    let nodes = &nodes;
+    let zero = T::zero();
+    let off = offsets::<T>();
+    for colour in &schedule.colours {
+        colour.par_iter().for_each(|&block| {
+            for &p in schedule.particles_of(block) {
+                let p = p as usize;
+                let (a, momentum) = particle_impulse(k, inputs, p);
+                let st = stencil(&x[p], &k.origin, k.inv_dx, res);
+                // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
+                // built incrementally; each node then takes one FMA.
+                let col = |c: usize| {
+                    let v = a.column(c) * k.dx;
+                    T::Lane4::from_array([v.x, v.y, v.z, zero])
+                };
+                let (ax, ay, az) = (col(0), col(1), col(2));
+                let q0v = momentum - a * (st.frac * k.dx);
+                let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
+                for i in 0..3 {
+                    let qi = ax.mul_add(T::Lane4::splat(off[i]), q0);
+                    for j in 0..3 {
+                        let wij = st.w[0][i] * st.w[1][j];
+                        let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
+                        let row = ((st.base[0] + i) * res + st.base[1] + j) * res + st.base[2];
+                        let q = [qij, qij + az, qij + az + az];
+                        for kk in 0..3 {
+                            let w = T::Lane4::splat(wij * st.w[2][kk]);
+                            // SAFETY: stencil bases are clamped to [0, res-3] so
+                            // row + kk < res³; disjointness: see module docs.
+                            let node = unsafe { &mut *nodes.0.add(row + kk) };
+                            *node = w.mul_add(q[kk], *node);
+                        }
+                    }
+                }
+            }
+        });
+    }
+}

@@ -1,0 +1,327 @@
+//! The MPM world: owns the state and runs substeps and video frames.
+//!
+//! Particles are stored in a spatially coherent slot order (sorted by grid
+//! block at construction) for cache locality; every public accessor speaks
+//! in the caller's particle order.
+
+use crate::SimError;
+use crate::actuators::{ActuatorConfig, Actuators};
+use crate::config::PhysicsConfig;
+use crate::g2p::g2p;
+use crate::grid::Grid;
+use crate::grid_update::grid_update;
+use crate::material::ParticleMaterial;
+use crate::p2g::{BlockSchedule, p2g};
+use crate::real::{Mat3, Real, Vec3, vec3};
+use crate::state::{Consts, Particles};
+use crate::stress::ImpulseInputs;
+
+#[derive(Debug)]
+pub struct World<T: Real> {
+    config: PhysicsConfig,
+    consts: Consts<T>,
+    particles: Particles<T>,
+    material: ParticleMaterial<T>,
+    pure_neo_hookean: bool,
+    actuators: Actuators<T>,
+    anchor_x: Vec<Vec3<T>>,
+    anchor_v: Vec<Vec3<T>>,
+    grid: Grid<T>,
+    schedule: BlockSchedule,
+    external_accel: Vec<Vec3<T>>,
+    /// `id_of_slot[slot]` = caller's particle index.
+    id_of_slot: Vec<u32>,
+    frame: usize,
+    substep_in_frame: usize,
+    /// Seconds spent per stage since construction (for benchmarks).
+    pub stage_seconds: StageSeconds,
+}
+
+/// Accumulated wall time per solver stage.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StageSeconds {
+    pub actuators: f64,
+    pub schedule: f64,
+    pub p2g: f64,
+    pub grid_update: f64,
+    pub g2p: f64,
+}
+
+impl<T: Real> World<T> {
+    /// A world of particles at rest at `positions`, each of volume
+    /// `particle_volume` (m³), with the given per-particle material.
+    pub fn new(
+        config: PhysicsConfig,
+        positions: &[[f64; 3]],
+        particle_volume: f64,
+        material: ParticleMaterial<T>,
+        actuators: ActuatorConfig,
+    ) -> Result<Self, SimError> {
+        config.validate()?;
+        let n = positions.len();
+        if n == 0 {
+            return Err(SimError::InvalidInput("no particles".into()));
+        }
+        if material.len() != n || material.expert_weights.len() != n {
+            return Err(SimError::InvalidInput(format!(
+                "material has {} entries for {} particles",
+                material.len(),
+                n
+            )));
+        }
+        if let Some(i) = positions
+            .iter()
+            .position(|p| p.iter().any(|c| !c.is_finite()))
+        {
+            return Err(SimError::InvalidInput(format!(
+                "particle {i} position is not finite"
+            )));
+        }
+        if !(particle_volume.is_finite() && particle_volume > 0.0) {
+            return Err(SimError::InvalidInput(
+                "particle volume must be positive".into(),
+            ));
+        }
+        let consts = Consts::new(&config, particle_volume * config.density);
+        let xs: Vec<Vec3<T>> = positions.iter().map(|&p| vec3(p)).collect();
+        let mut world = Self {
+            particles: Particles::at_rest(&xs, T::lit(particle_volume), T::lit(config.density)),
+            pure_neo_hookean: material.is_pure_neo_hookean(),
+            material,
+            actuators: Actuators::new(actuators, n),
+            anchor_x: Vec::new(),
+            anchor_v: Vec::new(),
+            grid: Grid::new(config.grid_res),
+            schedule: BlockSchedule::default(),
+            external_accel: Vec::new(),
+            id_of_slot: (0..n as u32).collect(),
+            frame: 0,
+            substep_in_frame: 0,
+            stage_seconds: StageSeconds::default(),
+            consts,
+            config,
+        };
+        world.sort_particles_spatially();
+        Ok(world)
+    }
+
+    fn sort_particles_spatially(&mut self) {
+        self.schedule.rebuild(&self.particles.x, &self.consts);
+        let order = self.schedule.order().to_vec();
+        self.particles.permute(&order);
+        let m = &mut self.material;
+        m.mu = order.iter().map(|&i| m.mu[i as usize]).collect();
+        m.lambda = order.iter().map(|&i| m.lambda[i as usize]).collect();
+        m.expert_weights = order
+            .iter()
+            .map(|&i| m.expert_weights[i as usize])
+            .collect();
+        self.actuators.permute(&order);
+        self.id_of_slot = order.iter().map(|&i| self.id_of_slot[i as usize]).collect();
+    }
+
+    pub fn config(&self) -> &PhysicsConfig {
+        &self.config
+    }
+
+    pub fn particle_count(&self) -> usize {
+        self.particles.len()
+    }
+
+    pub fn frame(&self) -> usize {
+        self.frame
+    }
+
+    pub fn actuators(&self) -> &Actuators<T> {
+        &self.actuators
+    }
+
+    /// Replaces the material (caller's particle order).
+    pub fn set_material(&mut self, material: ParticleMaterial<T>) -> Result<(), SimError> {
+        if material.len() != self.particle_count() {
+            return Err(SimError::InvalidInput(
+                "material size does not match particles".into(),
+            ));
+        }
+        let ids = &self.id_of_slot;
+        self.pure_neo_hookean = material.is_pure_neo_hookean();
+        self.material = ParticleMaterial {
+            mu: ids.iter().map(|&i| material.mu[i as usize]).collect(),
+            lambda: ids.iter().map(|&i| material.lambda[i as usize]).collect(),
+            expert_weights: ids
+                .iter()
+                .map(|&i| material.expert_weights[i as usize])
+                .collect(),
+        };
+        Ok(())
+    }
+
+    fn to_caller_order<V: Copy + Default>(&self, values: &[V]) -> Vec<V> {
+        let mut out = vec![V::default(); values.len()];
+        for (slot, &id) in self.id_of_slot.iter().enumerate() {
+            out[id as usize] = values[slot];
+        }
+        out
+    }
+
+    /// Positions in the caller's particle order, metres.
+    pub fn positions(&self) -> Vec<[f64; 3]> {
+        self.to_caller_order(&self.particles.x)
+            .iter()
+            .map(|p| [p.x.to_f64(), p.y.to_f64(), p.z.to_f64()])
+            .collect()
+    }
+
+    pub fn velocities(&self) -> Vec<[f64; 3]> {
+        self.to_caller_order(&self.particles.v)
+            .iter()
+            .map(|p| [p.x.to_f64(), p.y.to_f64(), p.z.to_f64()])
+            .collect()
+    }
+
+    pub fn deformation_gradients(&self) -> Vec<Mat3<T>> {
+        self.to_caller_order(&self.particles.f)
+    }
+
+    /// Sets all velocities (caller's order), e.g. an initial throw.
+    pub fn set_velocities(&mut self, v: &[[f64; 3]]) -> Result<(), SimError> {
+        if v.len() != self.particle_count() {
+            return Err(SimError::InvalidInput(
+                "velocity count does not match particles".into(),
+            ));
+        }
+        for (slot, &id) in self.id_of_slot.iter().enumerate() {
+            self.particles.v[slot] = vec3(v[id as usize]);
+        }
+        Ok(())
+    }
+
+    /// Total linear momentum, kg m/s.
+    pub fn total_momentum(&self) -> [f64; 3] {
+        let mut sum = [0.0; 3];
+        for (v, m) in self.particles.v.iter().zip(&self.particles.mass) {
+            for a in 0..3 {
+                sum[a] += v[a].to_f64() * m.to_f64();
+            }
+        }
+        sum
+    }
+
+    /// Total kinetic energy, J.
+    pub fn kinetic_energy(&self) -> f64 {
+        self.particles
+            .v
+            .iter()
+            .zip(&self.particles.mass)
+            .map(|(v, m)| 0.5 * m.to_f64() * v.norm_squared().to_f64())
+            .sum()
+    }
+
+    /// One MPM substep with the anchors where they are now.
+    pub fn substep(&mut self) -> Result<(), SimError> {
+        let k = self.consts;
+        let has_actuators = self.actuators.coupling_count() > 0;
+        let mut clock = std::time::Instant::now();
+        let mut lap = |slot: &mut f64| {
+            let now = std::time::Instant::now();
+            *slot += (now - clock).as_secs_f64();
+            clock = now;
+        };
+        if has_actuators {
+            self.external_accel
+                .resize(self.particle_count(), Vec3::zeros());
+            self.actuators.accelerations(
+                &self.particles.x,
+                &self.particles.v,
+                &self.anchor_x,
+                &self.anchor_v,
+                &mut self.external_accel,
+            );
+        }
+        lap(&mut self.stage_seconds.actuators);
+        self.schedule.rebuild(&self.particles.x, &k);
+        self.grid.clear();
+        lap(&mut self.stage_seconds.schedule);
+        let inputs = ImpulseInputs {
+            particles: &self.particles,
+            material: &self.material,
+            pure_neo_hookean: self.pure_neo_hookean,
+            external_accel: has_actuators.then_some(&self.external_accel[..]),
+        };
+        p2g(&k, &self.schedule, &inputs, &mut self.grid);
+        lap(&mut self.stage_seconds.p2g);
+        grid_update(&k, &mut self.grid);
+        lap(&mut self.stage_seconds.grid_update);
+        let g2p_result = g2p(&k, &self.grid, &mut self.particles);
+        lap(&mut self.stage_seconds.g2p);
+        g2p_result.map_err(|failure| SimError::Diverged {
+            frame: self.frame,
+            substep: self.substep_in_frame,
+            particle: self.id_of_slot[failure.slot] as usize,
+            reason: failure.reason.to_string(),
+        })?;
+        if has_actuators {
+            self.actuators.enforce_rigid(
+                &mut self.particles.x,
+                &mut self.particles.v,
+                &self.anchor_x,
+                &self.anchor_v,
+            );
+        }
+        self.substep_in_frame += 1;
+        Ok(())
+    }
+
+    /// Advances one video frame while the anchors move linearly from
+    /// `anchors_from` to `anchors_to`. `active` marks anchors allowed to
+    /// grasp (their grasp is captured at the start of the frame).
+    pub fn step_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+    ) -> Result<(), SimError> {
+        let m = anchors_from.len();
+        if anchors_to.len() != m || active.len() != m {
+            return Err(SimError::InvalidInput(
+                "anchor arrays differ in length".into(),
+            ));
+        }
+        if anchors_from
+            .iter()
+            .chain(anchors_to)
+            .any(|p| p.iter().any(|c| !c.is_finite()))
+        {
+            return Err(SimError::InvalidInput(format!(
+                "anchor positions for frame {} are not finite",
+                self.frame
+            )));
+        }
+        let steps = self.config.substeps_per_frame;
+        let frame_dt = self.config.dt * steps as f64;
+        let from: Vec<Vec3<T>> = anchors_from.iter().map(|&p| vec3(p)).collect();
+        self.actuators.grasp(&self.particles.x, &from, active);
+        self.anchor_v = anchors_from
+            .iter()
+            .zip(anchors_to)
+            .map(|(a, b)| vec3([0, 1, 2].map(|i| (b[i] - a[i]) / frame_dt)))
+            .collect();
+        self.substep_in_frame = 0;
+        for s in 0..steps {
+            let t = s as f64 / steps as f64;
+            self.anchor_x = anchors_from
+                .iter()
+                .zip(anchors_to)
+                .map(|(a, b)| vec3([0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t)))
+                .collect();
+            self.substep()?;
+        }
+        self.frame += 1;
+        Ok(())
+    }
+
+    /// Advances one frame with no anchors.
+    pub fn step_frame_free(&mut self) -> Result<(), SimError> {
+        self.step_frame(&[], &[], &[])
+    }
+}

@@ -509,13 +509,22 @@ pub fn write_json_atomic<T: Serialize + ?Sized>(path: &Path, value: &T) -> Resul
     let mut text = serde_json::to_vec_pretty(value)
         .map_err(|e| BundleError::new(path, "(document)", format!("serialising: {e}")))?;
     text.push(b'\n');
-    let temp = unique_sibling(path, "tmp");
-    let write_temp = || -> std::io::Result<()> {
-        let mut file = fs::File::create(&temp)?;
+    write_file_atomic(path, |temp| {
+        let mut file = fs::File::create(temp)?;
         file.write_all(&text)?;
         file.sync_all()
-    };
-    if let Err(e) = write_temp() {
+    })
+}
+
+/// Writes `path` through `write` on a unique temporary sibling, then
+/// renames it into place: readers never see a half-written file, and a
+/// failed write leaves the old file untouched.
+pub fn write_file_atomic(
+    path: &Path,
+    write: impl FnOnce(&Path) -> std::io::Result<()>,
+) -> Result<()> {
+    let temp = unique_sibling(path, "tmp");
+    if let Err(e) = write(&temp) {
         let _ = fs::remove_file(&temp);
         return Err(BundleError::io(&temp, "writing", &e));
     }

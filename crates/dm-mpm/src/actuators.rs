@@ -70,6 +70,12 @@ impl<T: Real> Actuators<T> {
         self.anchor.len()
     }
 
+    /// How many anchors every later frame must provide: one past the highest
+    /// anchor index any particle is tied to (0 when nothing is grasped).
+    pub fn anchors_needed(&self) -> usize {
+        self.anchor.iter().max().map_or(0, |&a| a as usize + 1)
+    }
+
     /// Number of particles tied to at least one anchor.
     pub fn coupled_particle_count(&self) -> usize {
         self.row_start.windows(2).filter(|w| w[1] > w[0]).count()

@@ -139,7 +139,9 @@ impl PhysicsConfig {
         }
         let [lo, hi] = self.position_clip;
         let min_clip = 1.5 / self.grid_res as f64;
-        if !(lo >= min_clip && hi <= 1.0 - min_clip && lo < hi) {
+        // Strict at the top: a particle exactly 1.5 cells below the top face
+        // has its stencil base at res - 2, one node past the grid.
+        if !(lo >= min_clip && hi < 1.0 - min_clip && lo < hi) {
             return bad(
                 "position_clip",
                 "must lie inside the grid by at least 1.5 cells so every stencil fits",

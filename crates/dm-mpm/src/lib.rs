@@ -8,6 +8,7 @@
 
 pub mod actuators;
 pub mod config;
+pub mod domain;
 pub mod experts;
 pub mod g2p;
 pub mod grid;

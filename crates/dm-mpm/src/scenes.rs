@@ -36,9 +36,6 @@ pub fn bench_block<T: Real>(
     config.grid_damping = 1.0;
     config.density = 1.0;
     config.gravity = [0.0, -9.8, 0.0];
-    if std::env::var("DM_NOCLAMP").is_ok() {
-        config.svd_clamp = [0.01, 100.0];
-    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let lo = [0.35, 0.15, 0.35];
     let centre = [0.5, 0.3, 0.5];

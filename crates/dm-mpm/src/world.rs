@@ -5,7 +5,7 @@
 //! in the caller's particle order.
 
 use crate::SimError;
-use crate::actuators::{ActuatorConfig, Actuators};
+use crate::actuators::{ActuatorConfig, ActuatorMode, Actuators};
 use crate::config::PhysicsConfig;
 use crate::g2p::g2p;
 use crate::grid::Grid;
@@ -62,7 +62,7 @@ impl<T: Real> World<T> {
         if n == 0 {
             return Err(SimError::InvalidInput("no particles".into()));
         }
-        if material.len() != n || material.expert_weights.len() != n {
+        if material.len() != n || material.lambda.len() != n || material.expert_weights.len() != n {
             return Err(SimError::InvalidInput(format!(
                 "material has {} entries for {} particles",
                 material.len(),
@@ -138,7 +138,8 @@ impl<T: Real> World<T> {
 
     /// Replaces the material (caller's particle order).
     pub fn set_material(&mut self, material: ParticleMaterial<T>) -> Result<(), SimError> {
-        if material.len() != self.particle_count() {
+        let n = self.particle_count();
+        if material.len() != n || material.lambda.len() != n || material.expert_weights.len() != n {
             return Err(SimError::InvalidInput(
                 "material size does not match particles".into(),
             ));
@@ -260,11 +261,18 @@ impl<T: Real> World<T> {
             particle: self.id_of_slot[failure.slot] as usize,
             reason: failure.reason.to_string(),
         })?;
-        if has_actuators {
+        if has_actuators && self.actuators.config.mode == ActuatorMode::Rigid {
+            // Particles are now at the end of the substep: so are the anchors.
+            let anchor_end: Vec<Vec3<T>> = self
+                .anchor_x
+                .iter()
+                .zip(&self.anchor_v)
+                .map(|(x, v)| x + v * k.dt)
+                .collect();
             self.actuators.enforce_rigid(
                 &mut self.particles.x,
                 &mut self.particles.v,
-                &self.anchor_x,
+                &anchor_end,
                 &self.anchor_v,
             );
         }
@@ -295,6 +303,14 @@ impl<T: Real> World<T> {
             return Err(SimError::InvalidInput(format!(
                 "anchor positions for frame {} are not finite",
                 self.frame
+            )));
+        }
+        let needed = self.actuators.anchors_needed();
+        if m < needed {
+            return Err(SimError::InvalidInput(format!(
+                "frame {} has {m} anchors but particles are grasped by anchor {}",
+                self.frame,
+                needed - 1
             )));
         }
         let steps = self.config.substeps_per_frame;

@@ -1,0 +1,278 @@
+//! The world model of one scene: the MPM world of `dm-mpm` set up from a
+//! scene bundle (domain around the object and the hand motion, floor and
+//! up axis from the bundle, material patches on the first-frame
+//! particles, actuators driven by the hand tracks), and open-loop rollouts.
+
+pub mod metrics;
+pub mod preview;
+
+use dm_bundle::{Bundle, Category};
+use dm_mpm::domain::cube_domain_containing;
+use dm_mpm::{
+    ActuatorConfig, ActuatorMode, MaterialBounds, MaterialPatches, ParticleMaterial, PatchParams,
+    PhysicsConfig, SimError, World,
+};
+use serde::{Deserialize, Serialize};
+
+/// Why a model could not be built or rolled out.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error(transparent)]
+    Bundle(#[from] dm_bundle::BundleError),
+    #[error(transparent)]
+    Simulation(#[from] SimError),
+    #[error("invalid model option `{option}`: {problem}")]
+    InvalidOption { option: String, problem: String },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ExpertChoice {
+    /// Mixture of Constitutive Experts (the method).
+    Moce,
+    /// A single Neo-Hookean expert (the paper's ablation).
+    Nh,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ActuatorChoice {
+    /// Distributed Compliant Actuators (the method).
+    Dca,
+    /// One actuator per particle.
+    Single,
+    /// Hard Dirichlet constraints.
+    Rigid,
+}
+
+/// Model options: CLI arguments of the tools and part of their run records.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+pub struct ModelOptions {
+    /// Constitutive model.
+    #[arg(long, value_enum, default_value_t = ExpertChoice::Moce)]
+    pub experts: ExpertChoice,
+    /// Actuator model.
+    #[arg(long, value_enum, default_value_t = ActuatorChoice::Dca)]
+    pub actuators: ActuatorChoice,
+    /// Grid cells per axis.
+    #[arg(long, default_value_t = 32)]
+    pub grid: usize,
+    /// Material patches (farthest-point samples of the first frame).
+    #[arg(long, default_value_t = 64)]
+    pub patches: usize,
+}
+
+impl Default for ModelOptions {
+    fn default() -> Self {
+        Self {
+            experts: ExpertChoice::Moce,
+            actuators: ActuatorChoice::Dca,
+            grid: 32,
+            patches: 64,
+        }
+    }
+}
+
+/// A world model ready to roll out.
+#[derive(Clone, Debug)]
+pub struct WorldModel {
+    pub options: ModelOptions,
+    pub physics: PhysicsConfig,
+    pub bounds: MaterialBounds,
+    pub patches: MaterialPatches,
+    pub params: PatchParams,
+    pub actuator: ActuatorConfig,
+    /// First-frame particles: the surface ones first, then the interior.
+    pub particles: Vec<[f64; 3]>,
+    pub colors: Vec<[f32; 3]>,
+    pub surface_count: usize,
+    pub particle_volume: f64,
+}
+
+/// Initial material of a category before any fitting: the geometric
+/// middle of the bounds and a moderate Poisson ratio.
+pub fn default_material(category: Category) -> (f64, f64) {
+    match category {
+        Category::Linear | Category::Planar => (1e5, 0.2),
+        Category::Volumetric => (1e6, 0.3),
+    }
+}
+
+/// Per-particle volume from occupancy: the cloud is voxelised at twice
+/// its median nearest-neighbour spacing.
+fn particle_volume(points: &[[f64; 3]]) -> f64 {
+    let index = dm_mpm::neighbors::PointIndex::new(points);
+    let mut nn: Vec<f64> = points
+        .iter()
+        .step_by((points.len() / 2000).max(1))
+        .filter_map(|p| index.nearest(p, 2).get(1).map(|n| n.1))
+        .collect();
+    nn.sort_by(f64::total_cmp);
+    let h = 2.0 * nn.get(nn.len() / 2).copied().unwrap_or(0.01).max(1e-4);
+    let mut cells: Vec<[i64; 3]> = points
+        .iter()
+        .map(|p| p.map(|c| (c / h).floor() as i64))
+        .collect();
+    cells.sort_unstable();
+    cells.dedup();
+    cells.len() as f64 * h.powi(3) / points.len() as f64
+}
+
+impl WorldModel {
+    /// The untrained model of a bundle's scene.
+    pub fn from_bundle(bundle: &Bundle, options: &ModelOptions) -> Result<Self, ModelError> {
+        if options.grid < 16 || options.patches == 0 {
+            return Err(ModelError::InvalidOption {
+                option: "--grid/--patches".into(),
+                problem: "need a grid of at least 16 and at least one patch".into(),
+            });
+        }
+        let p = &bundle.particles;
+        let mut particles = Vec::new();
+        let mut colors = Vec::new();
+        for (pts, cols) in [
+            (&p.surface_points, &p.surface_colors),
+            (&p.interior_points, &p.interior_colors),
+        ] {
+            for (row, col) in pts.outer_iter().zip(cols.outer_iter()) {
+                particles.push([row[0] as f64, row[1] as f64, row[2] as f64]);
+                colors.push([col[0], col[1], col[2]]);
+            }
+        }
+        let surface_count = p.surface_points.nrows();
+        let meta = &bundle.meta;
+        let up = meta.up_axis.unit_vector();
+
+        // Domain: the object, every hand position and the floor.
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let hands = bundle.tracks.hand_points.outer_iter().flat_map(|f| {
+            f.outer_iter()
+                .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
+                .collect::<Vec<_>>()
+        });
+        for q in particles.iter().copied().chain(hands) {
+            for a in 0..3 {
+                lo[a] = lo[a].min(q[a] - 0.05);
+                hi[a] = hi[a].max(q[a] + 0.05);
+            }
+        }
+        for a in 0..3 {
+            // Keep a little room below the floor along the up axis.
+            let floor_coord = meta.floor_height_m * up[a];
+            if up[a] != 0.0 {
+                lo[a] = lo[a].min(floor_coord - 0.02 * up[a].abs());
+                hi[a] = hi[a].max(floor_coord + 0.02 * up[a].abs());
+            }
+        }
+        let mut physics = match meta.category {
+            Category::Volumetric => PhysicsConfig::volumetric([0.0; 3], 1.0, up),
+            _ => PhysicsConfig::thin_object([0.0; 3], 1.0, up),
+        };
+        physics.grid_res = options.grid;
+        let (origin, size) = cube_domain_containing(
+            lo,
+            hi,
+            options.grid,
+            physics.wall_cells,
+            physics.position_clip,
+        );
+        physics.domain_origin = origin;
+        physics.domain_size = size;
+        let dx = physics.dx();
+        if let Some(floor) = physics.floor.as_mut() {
+            floor.height = meta.floor_height_m;
+            floor.margin = if meta.category == Category::Volumetric {
+                0.05 * dx
+            } else {
+                0.0
+            };
+        }
+        physics.substeps_per_frame = ((1.0 / meta.fps) / physics.dt).round().max(1.0) as usize;
+
+        let bounds = match meta.category {
+            Category::Volumetric => MaterialBounds::VOLUMETRIC,
+            _ => MaterialBounds::THIN,
+        };
+        let patches = MaterialPatches::build(&particles, options.patches);
+        let (e0, nu0) = default_material(meta.category);
+        let params = PatchParams::uniform(patches.patch_count(), &bounds, e0, nu0, [0.0; 3]);
+        let actuator = ActuatorConfig {
+            mode: match options.actuators {
+                ActuatorChoice::Dca => ActuatorMode::Distributed,
+                ActuatorChoice::Single => ActuatorMode::Single,
+                ActuatorChoice::Rigid => ActuatorMode::Rigid,
+            },
+            ..ActuatorConfig::default()
+        };
+        Ok(Self {
+            options: options.clone(),
+            physics,
+            bounds,
+            patches,
+            params,
+            actuator,
+            particle_volume: particle_volume(&particles),
+            particles,
+            colors,
+            surface_count,
+        })
+    }
+
+    /// Per-particle material of the current parameters.
+    pub fn particle_material(&self) -> ParticleMaterial<f32> {
+        let mut m = self
+            .patches
+            .particle_material::<f32>(&self.params, &self.bounds);
+        if self.options.experts == ExpertChoice::Nh {
+            m.expert_weights
+                .iter_mut()
+                .for_each(|w| *w = [1.0, 0.0, 0.0]);
+        }
+        m
+    }
+
+    /// Median Young's modulus (Pa) and Poisson ratio over particles.
+    pub fn material_medians(&self) -> (f64, f64) {
+        let (mut e, mut nu, _) = self.patches.particle_fields(&self.params, &self.bounds);
+        e.sort_by(f64::total_cmp);
+        nu.sort_by(f64::total_cmp);
+        (e[e.len() / 2], nu[nu.len() / 2])
+    }
+
+    /// Open-loop rollout from the first frame, driven by the observed hand
+    /// track, for `frames` frames (positions per frame, frame 0 included).
+    /// `on_frame` is called after each simulated frame (progress).
+    pub fn rollout(
+        &self,
+        bundle: &Bundle,
+        frames: usize,
+        on_frame: &mut dyn FnMut(usize),
+    ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
+        let frames = frames.min(bundle.frame_count());
+        let mut world = World::new(
+            self.physics.clone(),
+            &self.particles,
+            self.particle_volume,
+            self.particle_material(),
+            self.actuator,
+        )?;
+        let hands = &bundle.tracks.hand_points;
+        let visible = &bundle.tracks.hand_visibility;
+        let anchors = |t: usize| -> Vec<[f64; 3]> {
+            hands
+                .index_axis(ndarray::Axis(0), t)
+                .outer_iter()
+                .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
+                .collect()
+        };
+        let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
+        let mut out = vec![as_f32(world.positions())];
+        for t in 0..frames.saturating_sub(1) {
+            let active: Vec<bool> = visible.row(t).to_vec();
+            world.step_frame(&anchors(t), &anchors(t + 1), &active)?;
+            out.push(as_f32(world.positions()));
+            on_frame(t + 1);
+        }
+        Ok(out)
+    }
+}

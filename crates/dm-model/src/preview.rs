@@ -1,0 +1,114 @@
+//! Preview strips: the observed camera image above the model's prediction
+//! rendered from the same camera, at a few frames.
+
+use dm_bundle::Bundle;
+use dm_view::{Camera, FloorPlane, RenderOptions, Splat, render, side_by_side};
+use image::RgbImage;
+
+/// The bundle camera `index` as a renderer camera.
+pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle::BundleError> {
+    let spec = &bundle.meta.cameras[index];
+    Camera::from_matrix_4x4(
+        spec.width,
+        spec.height,
+        spec.fx,
+        spec.fy,
+        spec.cx,
+        spec.cy,
+        spec.world_to_camera,
+    )
+    .map_err(|e| {
+        dm_bundle::BundleError::new(
+            bundle.root.join(dm_bundle::BUNDLE_JSON),
+            format!("cameras[{index}].world_to_camera"),
+            e.to_string(),
+        )
+    })
+}
+
+/// Renders particles (with their colours) and hand anchors (skin-coloured
+/// balls) from `camera` over a floor.
+pub fn render_particles(
+    camera: &Camera,
+    positions: &[[f32; 3]],
+    colors: &[[f32; 3]],
+    radius: f32,
+    anchors: &[[f32; 3]],
+    up: [f64; 3],
+    floor_height: f64,
+) -> RgbImage {
+    let mut splats: Vec<Splat> = positions
+        .iter()
+        .zip(colors)
+        .map(|(&position, &color)| Splat {
+            position,
+            radius,
+            color,
+            label: 1,
+        })
+        .collect();
+    splats.extend(anchors.iter().map(|&position| Splat {
+        position,
+        radius: 0.009,
+        color: [0.86, 0.66, 0.55],
+        label: 2,
+    }));
+    let options = RenderOptions {
+        background: [0.55, 0.6, 0.65],
+        light_dir_world: [0.3, -0.4, 1.0],
+        ambient: 0.35,
+        diffuse: 0.7,
+        floor: Some(FloorPlane {
+            point: up.map(|u| u * floor_height),
+            normal: up,
+            checker_size_m: 0.1,
+            color_a: [0.62, 0.6, 0.56],
+            color_b: [0.52, 0.5, 0.47],
+        }),
+    };
+    render(camera, &splats, &options).to_rgb8()
+}
+
+/// Two rows (observed, predicted) of camera `camera_index` at `frames`.
+pub fn comparison_strip(
+    bundle: &Bundle,
+    camera_index: usize,
+    rollout: &[Vec<[f32; 3]>],
+    colors: &[[f32; 3]],
+    radius: f32,
+    frames: &[usize],
+) -> Result<RgbImage, dm_bundle::BundleError> {
+    let camera = bundle_camera(bundle, camera_index)?;
+    let up = bundle.meta.up_axis.unit_vector();
+    let mut observed = Vec::new();
+    let mut predicted = Vec::new();
+    for &t in frames {
+        observed.push(bundle.load_rgb(camera_index, t)?);
+        let anchors: Vec<[f32; 3]> = bundle
+            .tracks
+            .hand_points
+            .index_axis(ndarray::Axis(0), t)
+            .outer_iter()
+            .map(|r| [r[0], r[1], r[2]])
+            .collect();
+        predicted.push(render_particles(
+            &camera,
+            &rollout[t],
+            colors,
+            radius,
+            &anchors,
+            up,
+            bundle.meta.floor_height_m,
+        ));
+    }
+    let top = side_by_side(&observed, &[]);
+    let bottom = side_by_side(&predicted, &[]);
+    let mut out = RgbImage::from_pixel(
+        top.width(),
+        top.height() + bottom.height() + 4,
+        image::Rgb([255, 255, 255]),
+    );
+    image::imageops::replace(&mut out, &top, 0, 0);
+    image::imageops::replace(&mut out, &bottom, 0, i64::from(top.height()) + 4);
+    Ok(out)
+}

@@ -1,0 +1,37 @@
+//! Choosing the simulation domain around a scene.
+
+/// A cubic domain `(origin, size)` whose usable interior — inside the slip
+/// walls and the position clip, with one spare cell — contains the box
+/// `[lo, hi]`. The box is centred in the cube.
+pub fn cube_domain_containing(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    grid_res: usize,
+    wall_cells: usize,
+    position_clip: [f64; 2],
+) -> ([f64; 3], f64) {
+    let margin = position_clip[0]
+        .max(1.0 - position_clip[1])
+        .max((wall_cells as f64 + 1.0) / grid_res as f64);
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(1e-6, f64::max);
+    let size = extent / (1.0 - 2.0 * margin);
+    let origin = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * size);
+    (origin, size)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_fits_inside_walls_and_clip() {
+        let (lo, hi) = ([-0.3, -0.1, -0.02], [0.2, 0.1, 0.4]);
+        let (origin, size) = cube_domain_containing(lo, hi, 32, 3, [0.05, 0.95]);
+        let dx = size / 32.0;
+        for a in 0..3 {
+            assert!(lo[a] >= origin[a] + 4.0 * dx - 1e-12);
+            assert!(lo[a] >= origin[a] + 0.05 * size - 1e-12);
+            assert!(hi[a] <= origin[a] + size - 4.0 * dx + 1e-12);
+        }
+    }
+}

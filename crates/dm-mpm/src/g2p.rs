@@ -81,7 +81,8 @@ pub fn g2p<T: Real>(
                 let new_v = new_v * k.particle_damping_factor;
                 let mut new_f = (Mat3::identity() + new_c * k.dt) * *f;
                 let det = new_f.determinant();
-                if !(det > T::zero()) || !det.finite() {
+                // `finite` also catches NaN.
+                if det <= T::zero() || !det.finite() {
                     first.get_or_insert(ParticleFailure {
                         slot: chunk * CHUNK + o,
                         reason: "det F <= 0 or not finite",

@@ -35,6 +35,7 @@ pub fn bench_block<T: Real>(
     config.particle_damping = 0.0;
     config.grid_damping = 1.0;
     config.density = 1.0;
+    config.cfl = None; // the peers' fixed-step configuration
     config.gravity = [0.0, -9.8, 0.0];
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let lo = [0.35, 0.15, 0.35];

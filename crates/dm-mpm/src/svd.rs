@@ -124,6 +124,7 @@ pub fn svd3<T: Real>(f: &Mat3<T>) -> Svd3<T> {
 /// simulation (singular values in [1/2, 2]) it reaches f32 round-off in
 /// 3–4 iterations, about three times faster than going through an SVD.
 /// Falls back to the SVD if the iteration meets a singular matrix.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(a > b)` also catches NaN
 pub fn polar_rotation<T: Real>(f: &Mat3<T>) -> Mat3<T> {
     let single = std::mem::size_of::<T>() == 4;
     let tol = T::lit(if single { 1e-6 } else { 1e-14 });

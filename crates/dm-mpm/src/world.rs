@@ -16,6 +16,9 @@ use crate::real::{Mat3, Real, Vec3, vec3};
 use crate::state::{Consts, Particles};
 use crate::stress::ImpulseInputs;
 
+/// Refuse materials that would need more substeps per frame than this.
+pub const MAX_SUBSTEPS_PER_FRAME: usize = 4096;
+
 #[derive(Debug)]
 pub struct World<T: Real> {
     config: PhysicsConfig,
@@ -82,6 +85,27 @@ impl<T: Real> World<T> {
                 "particle volume must be positive".into(),
             ));
         }
+        // Refine the substep if the stiffest particle's P-wave would outrun it.
+        let max_modulus = material
+            .mu
+            .iter()
+            .zip(&material.lambda)
+            .map(|(&mu, &la)| (la + mu + mu).to_f64())
+            .fold(0.0, f64::max);
+        let mut config = config;
+        let (substeps, dt) = config.stable_substeps((max_modulus / config.density).sqrt());
+        if substeps > MAX_SUBSTEPS_PER_FRAME {
+            return Err(SimError::InvalidConfig {
+                field: "dt".into(),
+                problem: format!(
+                    "the stiffest material (P-wave modulus {max_modulus:.3e} Pa) needs {substeps} \
+                     substeps per frame at this grid for stability (more than {MAX_SUBSTEPS_PER_FRAME}); \
+                     lower E or coarsen the grid"
+                ),
+            });
+        }
+        config.substeps_per_frame = substeps;
+        config.dt = dt;
         let consts = Consts::new(&config, particle_volume * config.density);
         let xs: Vec<Vec3<T>> = positions.iter().map(|&p| vec3(p)).collect();
         let mut world = Self {
@@ -120,6 +144,7 @@ impl<T: Real> World<T> {
         self.id_of_slot = order.iter().map(|&i| self.id_of_slot[i as usize]).collect();
     }
 
+    /// The configuration in force (with the substep actually used).
     pub fn config(&self) -> &PhysicsConfig {
         &self.config
     }

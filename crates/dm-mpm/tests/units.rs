@@ -860,7 +860,8 @@ fn config_validation_names_the_bad_field() {
         .validate()
         .expect("thin defaults are valid");
     assert_eq!(good.gravity, [0.0, 0.0, -9.8]);
-    let cases: Vec<(&str, Box<dyn Fn(&mut PhysicsConfig)>)> = vec![
+    type Edit = Box<dyn Fn(&mut PhysicsConfig)>;
+    let cases: Vec<(&str, Edit)> = vec![
         ("grid_res", Box::new(|c| c.grid_res = 4)),
         ("domain_size", Box::new(|c| c.domain_size = -1.0)),
         ("dt", Box::new(|c| c.dt = f64::NAN)),
@@ -875,6 +876,7 @@ fn config_validation_names_the_bad_field() {
         ),
         ("svd_clamp", Box::new(|c| c.svd_clamp = [1.5, 2.0])),
         ("density", Box::new(|c| c.density = 0.0)),
+        ("density", Box::new(|c| c.density = f64::NAN)),
         ("gravity", Box::new(|c| c.gravity[1] = f64::INFINITY)),
         (
             "floor.up",

@@ -3,10 +3,9 @@
 //! world model and roll it out over the whole clip.
 
 use dm_bundle::Bundle;
-use dm_integration_tests::tiny_config;
 use dm_model::metrics::frame_errors;
 use dm_model::{ModelOptions, WorldModel};
-use dm_synth::Preset;
+use dm_synth::{Preset, SynthConfig};
 
 /// An untrained model on a tiny scene stays within a hand's reach of the
 /// observations: a larger error means the rollout went wrong, not that
@@ -20,7 +19,7 @@ fn issue2_every_preset_synthesises_validates_and_rolls_out() {
         .into_iter()
         .enumerate()
     {
-        let config = tiny_config(preset, 11 + i as u64);
+        let config = SynthConfig::tiny(preset, 11 + i as u64);
         let out = dir.path().join(preset.name());
         let truth = dm_synth::generate(
             &config,

@@ -89,12 +89,13 @@ pub struct WorldModel {
     pub particle_volume: f64,
 }
 
-/// Initial material of a category before any fitting: the geometric
-/// middle of the bounds and a moderate Poisson ratio.
+/// Initial material of a category before any fitting: in the soft part of
+/// the bounds (a stiff start costs many CFL-limited substeps per frame
+/// before the fit has even learnt anything) with a moderate Poisson ratio.
 pub fn default_material(category: Category) -> (f64, f64) {
     match category {
-        Category::Linear | Category::Planar => (1e5, 0.2),
-        Category::Volumetric => (1e6, 0.3),
+        Category::Linear | Category::Planar => (4e4, 0.2),
+        Category::Volumetric => (2e5, 0.3),
     }
 }
 

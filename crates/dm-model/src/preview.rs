@@ -2,7 +2,7 @@
 //! rendered from the same camera, at a few frames.
 
 use dm_bundle::Bundle;
-use dm_view::{Camera, FloorPlane, RenderOptions, Splat, render, side_by_side};
+use dm_view::{Camera, RenderOptions, Splat, render, side_by_side};
 use image::RgbImage;
 
 /// The bundle camera `index` as a renderer camera.
@@ -53,19 +53,7 @@ pub fn render_particles(
         color: [0.86, 0.66, 0.55],
         label: 2,
     }));
-    let options = RenderOptions {
-        background: [0.55, 0.6, 0.65],
-        light_dir_world: [0.3, -0.4, 1.0],
-        ambient: 0.35,
-        diffuse: 0.7,
-        floor: Some(FloorPlane {
-            point: up.map(|u| u * floor_height),
-            normal: up,
-            checker_size_m: 0.1,
-            color_a: [0.62, 0.6, 0.56],
-            color_b: [0.52, 0.5, 0.47],
-        }),
-    };
+    let options = RenderOptions::studio(up, floor_height);
     render(camera, &splats, &options).to_rgb8()
 }
 

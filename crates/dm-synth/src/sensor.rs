@@ -7,7 +7,7 @@ use dm_bundle::{
     BundleMeta, BundleWriter, CameraSpec, FirstFrameParticles, HandSpec, Provenance, Tracks,
 };
 use dm_mpm::neighbors::farthest_point_sampling;
-use dm_view::{Camera, FloorPlane, RenderOptions, Splat, add_sensor_noise, render};
+use dm_view::{Camera, RenderOptions, Splat, add_sensor_noise, render};
 use nalgebra::{Point3, Vector3};
 use ndarray::{Array2, Array3};
 use rand::{RngExt, SeedableRng};
@@ -222,19 +222,7 @@ pub fn write_bundle(
         .map(|&i| config.preset.albedo(truth.cloud.positions[i]))
         .collect();
     let radius = (0.85 * truth.cloud.spacing) as f32;
-    let options = RenderOptions {
-        background: [0.55, 0.6, 0.65],
-        light_dir_world: [0.3, -0.4, 1.0],
-        ambient: 0.35,
-        diffuse: 0.7,
-        floor: Some(FloorPlane {
-            point: [0.0, 0.0, 0.0],
-            normal: [0.0, 0.0, 1.0],
-            checker_size_m: 0.1,
-            color_a: [0.62, 0.6, 0.56],
-            color_b: [0.52, 0.5, 0.47],
-        }),
-    };
+    let options = RenderOptions::studio([0.0, 0.0, 1.0], 0.0);
 
     // Tracked points: farthest-point samples of the surface at frame 0.
     let surface_rest: Vec<[f64; 3]> = surface

@@ -38,8 +38,8 @@ impl Preset {
     pub fn nominal_material(self) -> (f64, f64) {
         match self {
             Preset::Rope => (8e4, 0.25),
-            Preset::Cloth => (5e4, 0.2),
-            Preset::Toy => (3e5, 0.3),
+            Preset::Cloth => (1.2e5, 0.15),
+            Preset::Toy => (4e5, 0.32),
         }
     }
 

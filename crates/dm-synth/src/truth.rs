@@ -94,12 +94,18 @@ impl GroundTruth {
     }
 }
 
+/// Per-particle truth material.
+struct TruthMaterialFields {
+    youngs: Vec<f64>,
+    poisson: Vec<f64>,
+    expert_weights: Vec<[f64; 3]>,
+    /// Centre and radius of the stiff inclusion, if that effect is hidden.
+    inclusion: Option<([f64; 3], f64)>,
+}
+
 /// Spatially varying (or homogeneous) truth material and the stiff
 /// inclusion, if that effect is hidden.
-fn truth_material(
-    config: &SynthConfig,
-    cloud: &ParticleCloud,
-) -> (Vec<f64>, Vec<f64>, Vec<[f64; 3]>, Option<([f64; 3], f64)>) {
+fn truth_material(config: &SynthConfig, cloud: &ParticleCloud) -> TruthMaterialFields {
     let (e0, nu0) = config.preset.nominal_material();
     let n = cloud.len();
     let seed = splitmix(config.seed ^ 0x3a7e_41a1);
@@ -156,7 +162,12 @@ fn truth_material(
         }
         inclusion = Some((centre, radius));
     }
-    (youngs, poisson, weights, inclusion)
+    TruthMaterialFields {
+        youngs,
+        poisson,
+        expert_weights: weights,
+        inclusion,
+    }
 }
 
 /// Runs the truth simulation for `config`.
@@ -173,7 +184,12 @@ pub fn simulate_truth(
         config.truth_particles,
         splitmix(config.seed ^ 0xc10d),
     );
-    let (youngs, poisson, weights, inclusion) = truth_material(config, &cloud);
+    let TruthMaterialFields {
+        youngs,
+        poisson,
+        expert_weights: weights,
+        inclusion,
+    } = truth_material(config, &cloud);
 
     // Domain: the object and every anchor position over the clip.
     let (mut lo, mut hi) = preset.bounds();

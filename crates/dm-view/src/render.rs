@@ -54,6 +54,27 @@ pub struct RenderOptions {
     pub floor: Option<FloorPlane>,
 }
 
+impl RenderOptions {
+    /// The look shared by synthetic captures and model previews: a soft
+    /// key light from above and a grey checkered floor (10 cm squares) at
+    /// `floor_height` along the unit vector `up`.
+    pub fn studio(up: [f64; 3], floor_height: f64) -> Self {
+        RenderOptions {
+            background: [0.55, 0.6, 0.65],
+            light_dir_world: [0.3, -0.4, 1.0],
+            ambient: 0.35,
+            diffuse: 0.7,
+            floor: Some(FloorPlane {
+                point: up.map(|u| u * floor_height),
+                normal: up,
+                checker_size_m: 0.1,
+                color_a: [0.62, 0.6, 0.56],
+                color_b: [0.52, 0.5, 0.47],
+            }),
+        }
+    }
+}
+
 impl Default for RenderOptions {
     fn default() -> Self {
         RenderOptions {

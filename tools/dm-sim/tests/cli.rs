@@ -6,13 +6,7 @@ use std::path::Path;
 use std::process::Command;
 
 fn tiny_scene(dir: &Path) -> std::path::PathBuf {
-    let mut config = SynthConfig::new(Preset::Rope, 5);
-    config.frames = 12;
-    config.width = 48;
-    config.height = 36;
-    config.truth_particles = 1500;
-    config.tracks = 40;
-    config.bundle_particles = 600;
+    let config = SynthConfig::tiny(Preset::Rope, 5);
     let out = dir.join("scene");
     dm_synth::generate(
         &config,
@@ -24,17 +18,21 @@ fn tiny_scene(dir: &Path) -> std::path::PathBuf {
     out
 }
 
+fn run_sim(scene: &Path, out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dm-sim"))
+        .arg(scene)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("dm-sim runs")
+}
+
 #[test]
 fn issue2_sim_rolls_out_and_summarises() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path());
     let out = dir.path().join("sim");
-    let result = Command::new(env!("CARGO_BIN_EXE_dm-sim"))
-        .arg(&scene)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("dm-sim runs");
+    let result = run_sim(&scene, &out);
     assert!(
         result.status.success(),
         "{}",
@@ -52,11 +50,11 @@ fn issue2_sim_rolls_out_and_summarises() {
             "{split} track error {track}"
         );
     }
-    assert_eq!(summary["frames"], 12);
+    assert_eq!(summary["frames"], 14);
     assert!(out.join("preview.png").is_file());
     let rollout: ndarray::Array3<f32> =
         ndarray_npy::read_npy(out.join("rollout.npy")).expect("rollout npy");
-    assert_eq!(rollout.shape()[0], 12);
+    assert_eq!(rollout.shape()[0], 14);
     assert!(rollout.iter().all(|v| v.is_finite()));
 }
 
@@ -68,12 +66,7 @@ fn issue2_sim_names_file_and_field_of_a_corrupted_bundle() {
     let bytes = std::fs::read(&points).expect("read");
     std::fs::write(&points, &bytes[..bytes.len() - 7]).expect("truncate");
     let out = dir.path().join("sim");
-    let result = Command::new(env!("CARGO_BIN_EXE_dm-sim"))
-        .arg(&scene)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("dm-sim runs");
+    let result = run_sim(&scene, &out);
     assert!(!result.status.success());
     let stderr = String::from_utf8_lossy(&result.stderr);
     assert!(stderr.contains("object_points.npy"), "{stderr}");

@@ -90,3 +90,50 @@ pub fn stencil<T: Real>(x: &Vec3<T>, origin: &Vec3<T>, inv_dx: T, res: usize) ->
 pub fn offsets<T: Real>() -> [T; 3] {
     [T::zero(), T::one(), T::lit(2.0)]
 }
+
+/// Derivatives of the 1D quadratic B-spline weights with respect to the
+/// fractional cell coordinate (`d w[offset] / d frac`).
+#[inline(always)]
+pub fn axis_weight_slopes<T: Real>(f: T) -> [T; 3] {
+    [
+        f - T::lit(1.5),
+        T::lit(-2.0) * (f - T::one()),
+        f - T::lit(0.5),
+    ]
+}
+
+impl<T: Real> Stencil<T> {
+    /// `d w_ijk / d x_p` for the node at offset (i, j, k), metres⁻¹.
+    #[inline(always)]
+    pub fn weight_gradient(
+        &self,
+        slopes: &[[T; 3]; 3],
+        inv_dx: T,
+        i: usize,
+        j: usize,
+        k: usize,
+    ) -> Vec3<T> {
+        let w = &self.w;
+        Vec3::new(
+            slopes[0][i] * w[1][j] * w[2][k],
+            w[0][i] * slopes[1][j] * w[2][k],
+            w[0][i] * w[1][j] * slopes[2][k],
+        ) * inv_dx
+    }
+
+    /// Per-axis weight slopes of this stencil.
+    #[inline(always)]
+    pub fn slopes(&self) -> [[T; 3]; 3] {
+        [
+            axis_weight_slopes(self.frac.x),
+            axis_weight_slopes(self.frac.y),
+            axis_weight_slopes(self.frac.z),
+        ]
+    }
+
+    /// `x_node − x_p` for the node at offset (i, j, k), metres.
+    #[inline(always)]
+    pub fn node_offset(&self, dx: T, i: usize, j: usize, k: usize) -> Vec3<T> {
+        (Vec3::new(T::from_index(i), T::from_index(j), T::from_index(k)) - self.frac) * dx
+    }
+}

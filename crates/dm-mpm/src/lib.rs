@@ -10,10 +10,12 @@ pub mod actuators;
 pub mod config;
 pub mod domain;
 pub mod experts;
+pub mod experts_backward;
 pub mod g2p;
 pub mod grid;
 pub mod grid_update;
 pub mod material;
+pub mod material_backward;
 pub mod neighbors;
 pub mod p2g;
 pub mod real;
@@ -21,6 +23,7 @@ pub mod scenes;
 pub mod state;
 pub mod stress;
 pub mod svd;
+pub mod svd_backward;
 pub mod world;
 
 pub use actuators::{ActuatorConfig, ActuatorMode};
@@ -46,3 +49,8 @@ pub enum SimError {
         reason: String,
     },
 }
+pub mod g2p_backward;
+pub mod grid_update_backward;
+pub mod p2g_backward;
+pub mod stress_backward;
+pub mod substep;

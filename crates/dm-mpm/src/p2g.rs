@@ -9,7 +9,7 @@
 //! node therefore sums its contributions in an order that does not depend
 //! on the number of threads: results are bitwise identical for any pool.
 
-use crate::grid::{Grid, offsets, stencil, stencil_base};
+use crate::grid::{Grid, Stencil, offsets, stencil, stencil_base};
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
 use crate::stress::{ImpulseInputs, particle_impulse};
@@ -87,11 +87,68 @@ impl BlockSchedule {
 }
 
 /// A raw pointer to grid nodes shared by the blocks of one colour.
+#[derive(Debug)]
 struct NodesPtr<L>(*mut L);
 // SAFETY: the colouring argument in the module docs guarantees that tasks
 // running concurrently write disjoint nodes.
-unsafe impl<T> Send for NodesPtr<T> {}
-unsafe impl<T> Sync for NodesPtr<T> {}
+unsafe impl<L> Send for NodesPtr<L> {}
+unsafe impl<L> Sync for NodesPtr<L> {}
+
+/// Write access to the 27 nodes of one particle's stencil, and only those:
+/// the one place where the colouring's disjointness is relied upon.
+#[derive(Debug)]
+pub struct StencilNodes<'a, L> {
+    nodes: &'a NodesPtr<L>,
+    res: usize,
+    base: [usize; 3],
+}
+
+impl<L> StencilNodes<'_, L> {
+    /// The node at stencil offset (i, j, k), each in 0..3.
+    #[inline(always)]
+    pub fn node(&mut self, i: usize, j: usize, k: usize) -> &mut L {
+        assert!(i < 3 && j < 3 && k < 3, "stencil offset out of range");
+        let index =
+            ((self.base[0] + i) * self.res + self.base[1] + j) * self.res + self.base[2] + k;
+        // SAFETY: bases are clamped to [0, res-3], so index < res³ (the
+        // length checked in `scatter`); concurrent tasks own disjoint
+        // node sets (module docs) and a task handles one particle at a time.
+        unsafe { &mut *self.nodes.0.add(index) }
+    }
+}
+
+impl BlockSchedule {
+    /// Runs `body(p, stencil, nodes)` for every particle, letting it
+    /// accumulate into its own stencil nodes: colour by colour, blocks of a
+    /// colour in parallel, particles of a block in slot order — so every
+    /// node sums in an order independent of the thread count.
+    pub fn scatter<T: Real, L: Send + Sync>(
+        &self,
+        k: &Consts<T>,
+        x: &[Vec3<T>],
+        nodes: &mut [L],
+        body: impl Fn(usize, &Stencil<T>, &mut StencilNodes<'_, L>) + Sync,
+    ) {
+        let res = k.res;
+        assert_eq!(nodes.len(), res * res * res, "grid size mismatch");
+        let ptr = NodesPtr(nodes.as_mut_ptr());
+        let ptr = &ptr;
+        for colour in &self.colours {
+            colour.par_iter().for_each(|&block| {
+                for &p in self.particles_of(block) {
+                    let p = p as usize;
+                    let st = stencil(&x[p], &k.origin, k.inv_dx, res);
+                    let mut writer = StencilNodes {
+                        nodes: ptr,
+                        res,
+                        base: st.base,
+                    };
+                    body(p, &st, &mut writer);
+                }
+            });
+        }
+    }
+}
 
 /// Scatters mass and momentum (`momentum + affine · (x_node − x_p)`) of
 /// every particle to its 27 stencil nodes. `grid` must be cleared.
@@ -101,46 +158,32 @@ pub fn p2g<T: Real>(
     inputs: &ImpulseInputs<'_, T>,
     grid: &mut Grid<T>,
 ) {
-    let res = k.res;
-    assert_eq!(grid.nodes.len(), res * res * res, "grid size mismatch");
-    let x = &inputs.particles.x;
     let mass = &inputs.particles.mass;
-    let nodes = NodesPtr(grid.nodes.as_mut_ptr());
-    let nodes = &nodes;
     let zero = T::zero();
     let off = offsets::<T>();
-    for colour in &schedule.colours {
-        colour.par_iter().for_each(|&block| {
-            for &p in schedule.particles_of(block) {
-                let p = p as usize;
-                let (a, momentum) = particle_impulse(k, inputs, p);
-                let st = stencil(&x[p], &k.origin, k.inv_dx, res);
-                // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
-                // built incrementally; each node then takes one FMA.
-                let col = |c: usize| {
-                    let v = a.column(c) * k.dx;
-                    T::Lane4::from_array([v.x, v.y, v.z, zero])
-                };
-                let (ax, ay, az) = (col(0), col(1), col(2));
-                let q0v = momentum - a * (st.frac * k.dx);
-                let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
-                for i in 0..3 {
-                    let qi = ax.mul_add(T::Lane4::splat(off[i]), q0);
-                    for j in 0..3 {
-                        let wij = st.w[0][i] * st.w[1][j];
-                        let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
-                        let row = ((st.base[0] + i) * res + st.base[1] + j) * res + st.base[2];
-                        let q = [qij, qij + az, qij + az + az];
-                        for kk in 0..3 {
-                            let w = T::Lane4::splat(wij * st.w[2][kk]);
-                            // SAFETY: stencil bases are clamped to [0, res-3] so
-                            // row + kk < res³; disjointness: see module docs.
-                            let node = unsafe { &mut *nodes.0.add(row + kk) };
-                            *node = w.mul_add(q[kk], *node);
-                        }
-                    }
+    schedule.scatter(k, &inputs.particles.x, &mut grid.nodes, |p, st, nodes| {
+        let (a, momentum) = particle_impulse(k, inputs, p);
+        // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
+        // built incrementally; each node then takes one FMA.
+        let col = |c: usize| {
+            let v = a.column(c) * k.dx;
+            T::Lane4::from_array([v.x, v.y, v.z, zero])
+        };
+        let (ax, ay, az) = (col(0), col(1), col(2));
+        let q0v = momentum - a * (st.frac * k.dx);
+        let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
+        for i in 0..3 {
+            let qi = ax.mul_add(T::Lane4::splat(off[i]), q0);
+            for j in 0..3 {
+                let wij = st.w[0][i] * st.w[1][j];
+                let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
+                let q = [qij, qij + az, qij + az + az];
+                for kk in 0..3 {
+                    let w = T::Lane4::splat(wij * st.w[2][kk]);
+                    let node = nodes.node(i, j, kk);
+                    *node = w.mul_add(q[kk], *node);
                 }
             }
-        });
-    }
+        }
+    });
 }

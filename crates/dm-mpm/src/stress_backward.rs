@@ -1,0 +1,75 @@
+//! Backward twin of `stress.rs`: the adjoint of the per-particle impulse
+//! `affine = s τ(F) + m C`, `momentum = m (v + dt a)` with
+//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
+
+use crate::experts_backward::mixture_kirchhoff_vjp;
+use crate::real::{Mat3, Real, Vec3};
+use crate::state::Consts;
+use crate::stress::ImpulseInputs;
+
+/// Adjoint of one particle's impulse with respect to its inputs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImpulseGrads<T> {
+    pub v: Vec3<T>,
+    pub f: Mat3<T>,
+    pub c: Mat3<T>,
+    pub mu: T,
+    pub lambda: T,
+    pub weights: [T; 3],
+    /// Adjoint of the external (actuator) acceleration.
+    pub external_accel: Vec3<T>,
+}
+
+/// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
+/// adjoints of its affine matrix and momentum.
+#[inline]
+pub fn particle_impulse_vjp<T: Real>(
+    k: &Consts<T>,
+    inputs: &ImpulseInputs<'_, T>,
+    p: usize,
+    grad_affine: &Mat3<T>,
+    grad_momentum: &Vec3<T>,
+) -> ImpulseGrads<T> {
+    let particles = inputs.particles;
+    let material = inputs.material;
+    let mass = particles.mass[p];
+    let v = particles.v[p];
+    let stress_scale = -k.dt * T::lit(4.0) * k.inv_dx * k.inv_dx * particles.volume[p];
+    let grad_tau = grad_affine * stress_scale;
+    // The pure Neo-Hookean fast path computes the same τ as the mixture
+    // with weights (1, 0, 0), so one VJP serves both.
+    let weights = if inputs.pure_neo_hookean {
+        [T::one(), T::zero(), T::zero()]
+    } else {
+        material.expert_weights[p]
+    };
+    let kg = mixture_kirchhoff_vjp(
+        &particles.f[p],
+        material.mu[p],
+        material.lambda[p],
+        &weights,
+        &grad_tau,
+    );
+    let grad_accel = grad_momentum * (mass * k.dt);
+    let mut grad_v = grad_momentum * mass;
+    if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {
+        let speed = v.norm();
+        grad_v -= grad_accel * (k.drag_linear + k.drag_quadratic * speed);
+        if speed > T::zero() {
+            grad_v -= v * (k.drag_quadratic * v.dot(&grad_accel) / speed);
+        }
+    }
+    ImpulseGrads {
+        v: grad_v,
+        f: kg.f,
+        c: grad_affine * mass,
+        mu: kg.mu,
+        lambda: kg.lambda,
+        weights: kg.weights,
+        external_accel: if inputs.external_accel.is_some() {
+            grad_accel
+        } else {
+            Vec3::zeros()
+        },
+    }
+}

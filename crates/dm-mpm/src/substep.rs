@@ -1,0 +1,150 @@
+//! One MPM substep as a pure function of the particle state, and its
+//! reverse-mode adjoint: stress → P2G → grid update → G2P, each stage
+//! differentiated by its backward twin. The backward pass recomputes the
+//! substep's forward grids from the stored input state (memory: one state
+//! per substep, no grids).
+
+use crate::SimError;
+use crate::g2p::{ParticleFailure, g2p};
+use crate::g2p_backward::{NodeVelocityGrads, ParticleGrads, g2p_backward};
+use crate::grid::Grid;
+use crate::grid_update::grid_update;
+use crate::grid_update_backward::grid_update_backward;
+use crate::material::ParticleMaterial;
+use crate::p2g::{BlockSchedule, p2g};
+use crate::p2g_backward::p2g_particle_vjp;
+use crate::real::{Real, Vec3};
+use crate::state::{Consts, Particles};
+use crate::stress::ImpulseInputs;
+use crate::stress_backward::particle_impulse_vjp;
+use rayon::prelude::*;
+
+/// Buffers reused across substeps.
+#[derive(Debug)]
+pub struct SubstepScratch<T: Real> {
+    pub schedule: BlockSchedule,
+    pub grid: Grid<T>,
+    grid_pre: Grid<T>,
+    grad_u: NodeVelocityGrads<T>,
+    grad_pre: Vec<T::Lane4>,
+}
+
+impl<T: Real> SubstepScratch<T> {
+    pub fn new(res: usize) -> Self {
+        Self {
+            schedule: BlockSchedule::default(),
+            grid: Grid::new(res),
+            grid_pre: Grid::new(res),
+            grad_u: Vec::new(),
+            grad_pre: Vec::new(),
+        }
+    }
+}
+
+/// The material and forcing a substep reads besides the state.
+#[derive(Clone, Copy, Debug)]
+pub struct SubstepInputs<'a, T> {
+    pub material: &'a ParticleMaterial<T>,
+    pub pure_neo_hookean: bool,
+    pub external_accel: Option<&'a [Vec3<T>]>,
+}
+
+/// Adjoint of a substep with respect to everything it reads.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SubstepGrads<T> {
+    pub state: ParticleGrads<T>,
+    pub mu: Vec<T>,
+    pub lambda: Vec<T>,
+    pub weights: Vec<[T; 3]>,
+    pub external_accel: Vec<Vec3<T>>,
+}
+
+/// Advances `particles` by one substep (no actuator constraints).
+pub fn substep_forward<T: Real>(
+    k: &Consts<T>,
+    inputs: &SubstepInputs<'_, T>,
+    particles: &mut Particles<T>,
+    scratch: &mut SubstepScratch<T>,
+) -> Result<(), ParticleFailure> {
+    scratch.schedule.rebuild(&particles.x, k);
+    scratch.grid.clear();
+    let impulse = ImpulseInputs {
+        particles,
+        material: inputs.material,
+        pure_neo_hookean: inputs.pure_neo_hookean,
+        external_accel: inputs.external_accel,
+    };
+    p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
+    grid_update(k, &mut scratch.grid);
+    g2p(k, &scratch.grid, particles)
+}
+
+/// Adjoint of [`substep_forward`] at the state `before`, given the adjoint
+/// of the state after it.
+pub fn substep_backward<T: Real>(
+    k: &Consts<T>,
+    inputs: &SubstepInputs<'_, T>,
+    before: &Particles<T>,
+    grad_after: &ParticleGrads<T>,
+    scratch: &mut SubstepScratch<T>,
+) -> Result<SubstepGrads<T>, SimError> {
+    let n = before.len();
+    // Recompute the forward grids of this substep.
+    scratch.schedule.rebuild(&before.x, k);
+    scratch.grid.clear();
+    let impulse = ImpulseInputs {
+        particles: before,
+        material: inputs.material,
+        pure_neo_hookean: inputs.pure_neo_hookean,
+        external_accel: inputs.external_accel,
+    };
+    p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
+    scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
+    grid_update(k, &mut scratch.grid);
+
+    let mut grads = SubstepGrads {
+        state: ParticleGrads::zeros(n),
+        mu: vec![T::zero(); n],
+        lambda: vec![T::zero(); n],
+        weights: vec![[T::zero(); 3]; n],
+        external_accel: vec![Vec3::zeros(); n],
+    };
+    g2p_backward(
+        k,
+        &scratch.schedule,
+        &scratch.grid,
+        &before.x,
+        &before.f,
+        grad_after,
+        &mut grads.state,
+        &mut scratch.grad_u,
+    );
+    grid_update_backward(k, &scratch.grid_pre, &scratch.grad_u, &mut scratch.grad_pre)?;
+    let grad_pre = &scratch.grad_pre;
+    let state = &mut grads.state;
+    (
+        state.x.par_iter_mut(),
+        state.v.par_iter_mut(),
+        state.f.par_iter_mut(),
+        state.c.par_iter_mut(),
+        grads.mu.par_iter_mut(),
+        grads.lambda.par_iter_mut(),
+        grads.weights.par_iter_mut(),
+        grads.external_accel.par_iter_mut(),
+    )
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga))| {
+            let scatter = p2g_particle_vjp(k, &impulse, p, grad_pre);
+            let g = particle_impulse_vjp(k, &impulse, p, &scatter.affine, &scatter.momentum);
+            *gx += scatter.x;
+            *gv += g.v;
+            *gf += g.f;
+            *gc += g.c;
+            *gmu = g.mu;
+            *glambda = g.lambda;
+            *gw = g.weights;
+            *ga = g.external_accel;
+        });
+    Ok(grads)
+}

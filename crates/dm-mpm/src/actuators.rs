@@ -45,13 +45,13 @@ impl Default for ActuatorConfig {
 #[derive(Clone, Debug)]
 pub struct Actuators<T> {
     pub config: ActuatorConfig,
-    grasped: Vec<bool>,
+    pub(crate) grasped: Vec<bool>,
     /// `row_start[p]..row_start[p+1]` are particle p's couplings.
-    row_start: Vec<u32>,
-    anchor: Vec<u32>,
-    rest_offset: Vec<Vec3<T>>,
+    pub(crate) row_start: Vec<u32>,
+    pub(crate) anchor: Vec<u32>,
+    pub(crate) rest_offset: Vec<Vec3<T>>,
     /// Distance at capture, used by `Single` to keep the nearest anchor.
-    capture_distance: Vec<T>,
+    pub(crate) capture_distance: Vec<T>,
 }
 
 impl<T: Real> Actuators<T> {

@@ -7,6 +7,7 @@
 //! strings them together and reports divergence instead of writing NaNs.
 
 pub mod actuators;
+pub mod actuators_backward;
 pub mod config;
 pub mod domain;
 pub mod experts;
@@ -24,6 +25,7 @@ pub mod state;
 pub mod stress;
 pub mod svd;
 pub mod svd_backward;
+pub mod tape;
 pub mod world;
 
 pub use actuators::{ActuatorConfig, ActuatorMode};

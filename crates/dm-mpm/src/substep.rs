@@ -59,15 +59,48 @@ pub struct SubstepGrads<T> {
     pub external_accel: Vec<Vec3<T>>,
 }
 
-/// Advances `particles` by one substep (no actuator constraints).
+/// Accumulated wall time per solver stage (for benchmarks).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StageSeconds {
+    pub actuators: f64,
+    pub schedule: f64,
+    pub p2g: f64,
+    pub grid_update: f64,
+    pub g2p: f64,
+}
+
+/// A stopwatch that adds each lap to a stage's total, when timing is on.
+struct Laps<'a> {
+    totals: Option<&'a mut StageSeconds>,
+    clock: std::time::Instant,
+}
+
+impl Laps<'_> {
+    fn lap(&mut self, stage: fn(&mut StageSeconds) -> &mut f64) {
+        if let Some(totals) = self.totals.as_deref_mut() {
+            let now = std::time::Instant::now();
+            *stage(totals) += (now - self.clock).as_secs_f64();
+            self.clock = now;
+        }
+    }
+}
+
+/// Advances `particles` by one substep (no actuator constraints), adding
+/// the time of each stage to `timings` when given.
 pub fn substep_forward<T: Real>(
     k: &Consts<T>,
     inputs: &SubstepInputs<'_, T>,
     particles: &mut Particles<T>,
     scratch: &mut SubstepScratch<T>,
+    timings: Option<&mut StageSeconds>,
 ) -> Result<(), ParticleFailure> {
+    let mut laps = Laps {
+        totals: timings,
+        clock: std::time::Instant::now(),
+    };
     scratch.schedule.rebuild(&particles.x, k);
     scratch.grid.clear();
+    laps.lap(|s| &mut s.schedule);
     let impulse = ImpulseInputs {
         particles,
         material: inputs.material,
@@ -75,8 +108,12 @@ pub fn substep_forward<T: Real>(
         external_accel: inputs.external_accel,
     };
     p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
+    laps.lap(|s| &mut s.p2g);
     grid_update(k, &mut scratch.grid);
-    g2p(k, &scratch.grid, particles)
+    laps.lap(|s| &mut s.grid_update);
+    let result = g2p(k, &scratch.grid, particles);
+    laps.lap(|s| &mut s.g2p);
+    result
 }
 
 /// Adjoint of [`substep_forward`] at the state `before`, given the adjoint

@@ -7,14 +7,11 @@
 use crate::SimError;
 use crate::actuators::{ActuatorConfig, ActuatorMode, Actuators};
 use crate::config::PhysicsConfig;
-use crate::g2p::g2p;
-use crate::grid::Grid;
-use crate::grid_update::grid_update;
 use crate::material::ParticleMaterial;
-use crate::p2g::{BlockSchedule, p2g};
 use crate::real::{Mat3, Real, Vec3, vec3};
 use crate::state::{Consts, Particles};
-use crate::stress::ImpulseInputs;
+use crate::substep::{StageSeconds, SubstepInputs, SubstepScratch, substep_forward};
+use crate::tape::FrameTape;
 
 /// Refuse materials that would need more substeps per frame than this.
 pub const MAX_SUBSTEPS_PER_FRAME: usize = 4096;
@@ -22,32 +19,21 @@ pub const MAX_SUBSTEPS_PER_FRAME: usize = 4096;
 #[derive(Debug)]
 pub struct World<T: Real> {
     config: PhysicsConfig,
-    consts: Consts<T>,
-    particles: Particles<T>,
-    material: ParticleMaterial<T>,
-    pure_neo_hookean: bool,
-    actuators: Actuators<T>,
+    pub(crate) consts: Consts<T>,
+    pub(crate) particles: Particles<T>,
+    pub(crate) material: ParticleMaterial<T>,
+    pub(crate) pure_neo_hookean: bool,
+    pub(crate) actuators: Actuators<T>,
     anchor_x: Vec<Vec3<T>>,
     anchor_v: Vec<Vec3<T>>,
-    grid: Grid<T>,
-    schedule: BlockSchedule,
-    external_accel: Vec<Vec3<T>>,
+    pub(crate) scratch: SubstepScratch<T>,
+    pub(crate) external_accel: Vec<Vec3<T>>,
     /// `id_of_slot[slot]` = caller's particle index.
-    id_of_slot: Vec<u32>,
+    pub(crate) id_of_slot: Vec<u32>,
     frame: usize,
     substep_in_frame: usize,
     /// Seconds spent per stage since construction (for benchmarks).
     pub stage_seconds: StageSeconds,
-}
-
-/// Accumulated wall time per solver stage.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct StageSeconds {
-    pub actuators: f64,
-    pub schedule: f64,
-    pub p2g: f64,
-    pub grid_update: f64,
-    pub g2p: f64,
 }
 
 impl<T: Real> World<T> {
@@ -115,8 +101,7 @@ impl<T: Real> World<T> {
             actuators: Actuators::new(actuators, n),
             anchor_x: Vec::new(),
             anchor_v: Vec::new(),
-            grid: Grid::new(config.grid_res),
-            schedule: BlockSchedule::default(),
+            scratch: SubstepScratch::new(config.grid_res),
             external_accel: Vec::new(),
             id_of_slot: (0..n as u32).collect(),
             frame: 0,
@@ -130,8 +115,10 @@ impl<T: Real> World<T> {
     }
 
     fn sort_particles_spatially(&mut self) {
-        self.schedule.rebuild(&self.particles.x, &self.consts);
-        let order = self.schedule.order().to_vec();
+        self.scratch
+            .schedule
+            .rebuild(&self.particles.x, &self.consts);
+        let order = self.scratch.schedule.order().to_vec();
         self.particles.permute(&order);
         let m = &mut self.material;
         m.mu = order.iter().map(|&i| m.mu[i as usize]).collect();
@@ -182,12 +169,58 @@ impl<T: Real> World<T> {
         Ok(())
     }
 
-    fn to_caller_order<V: Copy + Default>(&self, values: &[V]) -> Vec<V> {
+    pub(crate) fn to_caller_order<V: Copy + Default>(&self, values: &[V]) -> Vec<V> {
         let mut out = vec![V::default(); values.len()];
         for (slot, &id) in self.id_of_slot.iter().enumerate() {
             out[id as usize] = values[slot];
         }
         out
+    }
+
+    /// Reorders values given in the caller's particle order into slots.
+    pub(crate) fn to_slot_order<V: Copy>(&self, values: &[V]) -> Vec<V> {
+        self.id_of_slot
+            .iter()
+            .map(|&id| values[id as usize])
+            .collect()
+    }
+
+    /// The full particle state in the caller's order (for checkpoints and
+    /// gradient checks).
+    pub fn state(&self) -> Particles<T> {
+        let p = &self.particles;
+        Particles {
+            x: self.to_caller_order(&p.x),
+            v: self.to_caller_order(&p.v),
+            f: self.to_caller_order(&p.f),
+            c: self.to_caller_order(&p.c),
+            mass: self.to_caller_order(&p.mass),
+            volume: self.to_caller_order(&p.volume),
+        }
+    }
+
+    /// Replaces the particle state (caller's order, same particle count).
+    pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), SimError> {
+        if state.len() != self.particle_count() {
+            return Err(SimError::InvalidInput(
+                "state size does not match particles".into(),
+            ));
+        }
+        self.particles = Particles {
+            x: self.to_slot_order(&state.x),
+            v: self.to_slot_order(&state.v),
+            f: self.to_slot_order(&state.f),
+            c: self.to_slot_order(&state.c),
+            mass: self.to_slot_order(&state.mass),
+            volume: self.to_slot_order(&state.volume),
+        };
+        Ok(())
+    }
+
+    /// Sets the actuator gains (k_p in 1/s², k_d in 1/s).
+    pub fn set_gains(&mut self, kp: f64, kd: f64) {
+        self.actuators.config.kp = kp;
+        self.actuators.config.kd = kd;
     }
 
     /// Positions in the caller's particle order, metres.
@@ -246,54 +279,29 @@ impl<T: Real> World<T> {
     /// One MPM substep with the anchors where they are now.
     pub fn substep(&mut self) -> Result<(), SimError> {
         let k = self.consts;
-        let has_actuators = self.actuators.coupling_count() > 0;
-        let mut clock = std::time::Instant::now();
-        let mut lap = |slot: &mut f64| {
-            let now = std::time::Instant::now();
-            *slot += (now - clock).as_secs_f64();
-            clock = now;
-        };
-        if has_actuators {
-            self.external_accel
-                .resize(self.particle_count(), Vec3::zeros());
-            self.actuators.accelerations(
-                &self.particles.x,
-                &self.particles.v,
-                &self.anchor_x,
-                &self.anchor_v,
-                &mut self.external_accel,
-            );
-        }
-        lap(&mut self.stage_seconds.actuators);
-        self.schedule.rebuild(&self.particles.x, &k);
-        self.grid.clear();
-        lap(&mut self.stage_seconds.schedule);
-        let inputs = ImpulseInputs {
-            particles: &self.particles,
+        let clock = std::time::Instant::now();
+        let has_actuators = self.update_external_accel();
+        self.stage_seconds.actuators += clock.elapsed().as_secs_f64();
+        let inputs = SubstepInputs {
             material: &self.material,
             pure_neo_hookean: self.pure_neo_hookean,
             external_accel: has_actuators.then_some(&self.external_accel[..]),
         };
-        p2g(&k, &self.schedule, &inputs, &mut self.grid);
-        lap(&mut self.stage_seconds.p2g);
-        grid_update(&k, &mut self.grid);
-        lap(&mut self.stage_seconds.grid_update);
-        let g2p_result = g2p(&k, &self.grid, &mut self.particles);
-        lap(&mut self.stage_seconds.g2p);
-        g2p_result.map_err(|failure| SimError::Diverged {
+        substep_forward(
+            &k,
+            &inputs,
+            &mut self.particles,
+            &mut self.scratch,
+            Some(&mut self.stage_seconds),
+        )
+        .map_err(|failure| SimError::Diverged {
             frame: self.frame,
             substep: self.substep_in_frame,
             particle: self.id_of_slot[failure.slot] as usize,
             reason: failure.reason.to_string(),
         })?;
         if has_actuators && self.actuators.config.mode == ActuatorMode::Rigid {
-            // Particles are now at the end of the substep: so are the anchors.
-            let anchor_end: Vec<Vec3<T>> = self
-                .anchor_x
-                .iter()
-                .zip(&self.anchor_v)
-                .map(|(x, v)| x + v * k.dt)
-                .collect();
+            let anchor_end = self.anchors_at_substep_end();
             self.actuators.enforce_rigid(
                 &mut self.particles.x,
                 &mut self.particles.v,
@@ -305,6 +313,34 @@ impl<T: Real> World<T> {
         Ok(())
     }
 
+    /// Actuator accelerations for the current state and anchors; false when
+    /// no particle is coupled (the buffer is then unused).
+    fn update_external_accel(&mut self) -> bool {
+        if self.actuators.coupling_count() == 0 {
+            return false;
+        }
+        self.external_accel
+            .resize(self.particle_count(), Vec3::zeros());
+        self.actuators.accelerations(
+            &self.particles.x,
+            &self.particles.v,
+            &self.anchor_x,
+            &self.anchor_v,
+            &mut self.external_accel,
+        );
+        true
+    }
+
+    /// Anchor positions at the end of the current substep (rigid mode places
+    /// particles there, since G2P already advanced them to that time).
+    fn anchors_at_substep_end(&self) -> Vec<Vec3<T>> {
+        self.anchor_x
+            .iter()
+            .zip(&self.anchor_v)
+            .map(|(x, v)| x + v * self.consts.dt)
+            .collect()
+    }
+
     /// Advances one video frame while the anchors move linearly from
     /// `anchors_from` to `anchors_to`. `active` marks anchors allowed to
     /// grasp (their grasp is captured at the start of the frame).
@@ -313,6 +349,31 @@ impl<T: Real> World<T> {
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
         active: &[bool],
+    ) -> Result<(), SimError> {
+        self.advance_frame(anchors_from, anchors_to, active, None)
+    }
+
+    /// Like [`World::step_frame`], recording what the backward pass needs
+    /// for the last `window` substeps of the frame (all of them when
+    /// `window >= substeps_per_frame`).
+    pub fn step_frame_taped(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        window: usize,
+    ) -> Result<FrameTape<T>, SimError> {
+        let mut tape = FrameTape::new(window.min(self.config.substeps_per_frame));
+        self.advance_frame(anchors_from, anchors_to, active, Some(&mut tape))?;
+        Ok(tape)
+    }
+
+    fn advance_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        mut tape: Option<&mut FrameTape<T>>,
     ) -> Result<(), SimError> {
         let m = anchors_from.len();
         if anchors_to.len() != m || active.len() != m {
@@ -355,6 +416,11 @@ impl<T: Real> World<T> {
                 .zip(anchors_to)
                 .map(|(a, b)| vec3([0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t)))
                 .collect();
+            if let Some(tape) = tape.as_deref_mut()
+                && s + tape.window >= steps
+            {
+                tape.record(&self.particles, &self.anchor_x, &self.anchor_v);
+            }
             self.substep()?;
         }
         self.frame += 1;

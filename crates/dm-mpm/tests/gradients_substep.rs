@@ -116,7 +116,7 @@ impl Probe {
             external_accel: Some(&s.external_accel),
         };
         let mut scratch = SubstepScratch::new(s.consts.res);
-        substep_forward(&s.consts, &inputs, &mut particles, &mut scratch)
+        substep_forward(&s.consts, &inputs, &mut particles, &mut scratch, None)
             .expect("substep stays valid");
         (0..particles.len())
             .map(|p| {

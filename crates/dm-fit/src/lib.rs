@@ -1,0 +1,20 @@
+//! Fitting the DeformMaster world model to video tracks (method.md §7).
+//!
+//! For now this crate holds the optimisers of the fitting stages:
+//!
+//! * [`optim::Adam`] with the method's gradient clipping
+//!   ([`optim::clip_physics_gradients`]: 1.0 per physics parameter, 10.0
+//!   global, method.md §2) for the material fields and the residual network
+//!   (stages 1 and 2);
+//! * [`optim::Cmaes`] / [`optim::minimize`], a gradient-free
+//!   (μ/μ_w, λ)-CMA-ES for selecting the actuator gains (k_p, k_d)
+//!   (method.md §4, §7 step 2).
+//!
+//! Parameters live in an [`optim::ParamSet`]: ordered, named groups of
+//! `f64` values, stored unbounded; the model maps them through bounded
+//! activations (e.g. log-sigmoid for Young's modulus), so the optimisers
+//! never need to know about physical bounds.
+//!
+//! Losses and the training stages will be added here later.
+
+pub mod optim;

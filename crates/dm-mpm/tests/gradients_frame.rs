@@ -18,7 +18,8 @@ fn rand_vec(rng: &mut ChaCha8Rng, s: f64) -> Vec3<f64> {
     Vec3::new(0.0, 0.0, 0.0).map(|_| s * (2.0 * rng.random::<f64>() - 1.0))
 }
 
-const FROM: [[f64; 3]; 2] = [[-0.01, 0.0, 0.125], [0.03, 0.0, 0.125]];
+// 2 cm apart with a 3 cm grasp radius: some particles hang on both (n = 2).
+const FROM: [[f64; 3]; 2] = [[-0.01, 0.0, 0.125], [0.01, 0.0, 0.125]];
 
 fn anchors_to() -> Vec<[f64; 3]> {
     FROM.iter()

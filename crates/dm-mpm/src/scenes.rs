@@ -29,7 +29,20 @@ pub fn bench_block<T: Real>(
     experts: BenchExperts,
     seed: u64,
 ) -> Result<World<T>, SimError> {
+    bench_block_frames(particles, grid_res, experts, seed, 42)
+}
+
+/// [`bench_block`] with `substeps_per_frame` substeps in a frame (the
+/// gradient benchmark differentiates one frame of exactly its window).
+pub fn bench_block_frames<T: Real>(
+    particles: usize,
+    grid_res: usize,
+    experts: BenchExperts,
+    seed: u64,
+    substeps_per_frame: usize,
+) -> Result<World<T>, SimError> {
     let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 1.0, 0.0]);
+    config.substeps_per_frame = substeps_per_frame;
     config.grid_res = grid_res;
     config.floor = None;
     config.particle_damping = 0.0;

@@ -2,7 +2,7 @@
 //! `affine = s τ(F) + m C`, `momentum = m (v + dt a)` with
 //! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
 
-use crate::experts_backward::mixture_kirchhoff_vjp;
+use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
 use crate::real::{Mat3, Real, Vec3};
 use crate::state::Consts;
 use crate::stress::ImpulseInputs;
@@ -36,20 +36,20 @@ pub fn particle_impulse_vjp<T: Real>(
     let v = particles.v[p];
     let stress_scale = -k.dt * T::lit(4.0) * k.inv_dx * k.inv_dx * particles.volume[p];
     let grad_tau = grad_affine * stress_scale;
-    // The pure Neo-Hookean fast path computes the same τ as the mixture
-    // with weights (1, 0, 0), so one VJP serves both.
-    let weights = if inputs.pure_neo_hookean {
-        [T::one(), T::zero(), T::zero()]
+    let (f, mu, lambda) = (&particles.f[p], material.mu[p], material.lambda[p]);
+    // A pure Neo-Hookean world has no learnable expert weights: skip their
+    // gradients (they would cost a polar decomposition per particle).
+    let kg = if inputs.pure_neo_hookean {
+        let g = neo_hookean_kirchhoff_vjp(f, mu, lambda, &grad_tau);
+        KirchhoffGrads {
+            f: g.f,
+            mu: g.mu,
+            lambda: g.lambda,
+            weights: [T::zero(); 3],
+        }
     } else {
-        material.expert_weights[p]
+        mixture_kirchhoff_vjp(f, mu, lambda, &material.expert_weights[p], &grad_tau)
     };
-    let kg = mixture_kirchhoff_vjp(
-        &particles.f[p],
-        material.mu[p],
-        material.lambda[p],
-        &weights,
-        &grad_tau,
-    );
     let grad_accel = grad_momentum * (mass * k.dt);
     let mut grad_v = grad_momentum * mass;
     if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {

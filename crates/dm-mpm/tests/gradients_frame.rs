@@ -112,7 +112,7 @@ fn issue3_frame_adjoint_with_actuators_matches_finite_differences() {
     assert_eq!(tape.len(), w.config().substeps_per_frame, "full window");
     let grads = w.backward_frame(&tape, &probe).expect("backward");
 
-    let mut run = |w: &mut World<f64>, state: &Particles<f64>| {
+    let run = |w: &mut World<f64>, state: &Particles<f64>| {
         w.set_state(state).expect("state");
         w.step_frame(&FROM, &to, &[true, true]).expect("frame");
         loss(&w.state(), &probe)

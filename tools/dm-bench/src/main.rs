@@ -2,7 +2,9 @@
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use dm_mpm::scenes::{BenchExperts, bench_block};
+use dm_mpm::g2p_backward::ParticleGrads;
+use dm_mpm::material_backward::lame_vjp;
+use dm_mpm::scenes::{BenchExperts, bench_block, bench_block_frames};
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
@@ -36,6 +38,20 @@ enum Command {
         /// Measured substeps (after 20 warm-up substeps).
         #[arg(long, default_value_t = 400)]
         substeps: usize,
+    },
+    /// Forward + backward of one truncated-BPTT window on the reference
+    /// block (Neo-Hookean); loss = mean |x|² after the window; gradient
+    /// with respect to every particle's Young's modulus.
+    Grad {
+        #[arg(long, default_value_t = 10_000)]
+        particles: usize,
+        #[arg(long, default_value_t = 20)]
+        window: usize,
+        #[arg(long, default_value_t = 32)]
+        grid: usize,
+        /// Timed repetitions (the median is printed).
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
     },
 }
 
@@ -78,6 +94,57 @@ fn main() -> Result<()> {
                 rayon::current_num_threads()
             );
         }
+        Command::Grad {
+            particles,
+            window,
+            grid,
+            repeats,
+        } => grad_window(particles, window, grid, repeats)?,
     }
+    Ok(())
+}
+
+fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize) -> Result<()> {
+    let (youngs, poisson) = (400.0, 0.2);
+    let mut forward = Vec::new();
+    let mut total = Vec::new();
+    let mut checksum = 0.0;
+    for _ in 0..repeats.max(1) {
+        let mut world =
+            bench_block_frames::<f32>(particles, grid, BenchExperts::NeoHookean, 0, window)
+                .context("building the benchmark block")?;
+        let start = Instant::now();
+        let tape = world.step_frame_taped(&[], &[], &[], window)?;
+        let forward_s = start.elapsed().as_secs_f64();
+        let state = world.state();
+        let n = state.len() as f32;
+        let mut upstream = ParticleGrads::zeros(state.len());
+        for (g, x) in upstream.x.iter_mut().zip(&state.x) {
+            *g = x * (2.0 / n);
+        }
+        let grads = world.backward_frame(&tape, &upstream)?;
+        let grad_youngs: Vec<f32> = grads
+            .mu
+            .iter()
+            .zip(&grads.lambda)
+            .map(|(&gm, &gl)| lame_vjp(youngs as f32, poisson as f32, gm, gl).0)
+            .collect();
+        total.push(start.elapsed().as_secs_f64());
+        forward.push(forward_s);
+        checksum = grad_youngs.iter().map(|g| f64::from(*g)).sum::<f64>();
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (t, f) = (median(&mut total), median(&mut forward));
+    println!("grad_window_s {t:.4}");
+    eprintln!(
+        "# {particles} particles, grid {grid}^3, window {window}: forward {f:.4} s, backward {:.4} s \
+         (backward/forward {:.2}); sum dL/dE = {checksum:.4e}; {} threads",
+        t - f,
+        (t - f) / f,
+        rayon::current_num_threads()
+    );
     Ok(())
 }

@@ -17,4 +17,6 @@
 //!
 //! Losses and the training stages will be added here later.
 
+pub mod loss;
+pub mod material_fit;
 pub mod optim;

@@ -240,6 +240,17 @@ impl WorldModel {
         (e[e.len() / 2], nu[nu.len() / 2])
     }
 
+    /// A fresh MPM world of this model at the first frame.
+    pub fn world(&self) -> Result<World<f32>, ModelError> {
+        Ok(World::new(
+            self.physics.clone(),
+            &self.particles,
+            self.particle_volume,
+            self.particle_material(),
+            self.actuator,
+        )?)
+    }
+
     /// Open-loop rollout from the first frame, driven by the observed hand
     /// track, for `frames` frames (positions per frame, frame 0 included).
     /// `on_frame` is called after each simulated frame (progress).
@@ -250,30 +261,37 @@ impl WorldModel {
         on_frame: &mut dyn FnMut(usize),
     ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         let frames = frames.min(bundle.frame_count());
-        let mut world = World::new(
-            self.physics.clone(),
-            &self.particles,
-            self.particle_volume,
-            self.particle_material(),
-            self.actuator,
-        )?;
-        let hands = &bundle.tracks.hand_points;
-        let visible = &bundle.tracks.hand_visibility;
-        let anchors = |t: usize| -> Vec<[f64; 3]> {
-            hands
-                .index_axis(ndarray::Axis(0), t)
-                .outer_iter()
-                .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
-                .collect()
-        };
+        let mut world = self.world()?;
         let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
         let mut out = vec![as_f32(world.positions())];
         for t in 0..frames.saturating_sub(1) {
-            let active: Vec<bool> = visible.row(t).to_vec();
-            world.step_frame(&anchors(t), &anchors(t + 1), &active)?;
+            let (from, to, grasp) = hand_step(bundle, t);
+            world.step_frame(&from, &to, &grasp)?;
             out.push(as_f32(world.positions()));
             on_frame(t + 1);
         }
         Ok(out)
     }
+}
+
+/// Hand anchor positions of frame `t` (metres).
+pub fn hand_anchors(bundle: &Bundle, t: usize) -> Vec<[f64; 3]> {
+    bundle
+        .tracks
+        .hand_points
+        .index_axis(ndarray::Axis(0), t)
+        .outer_iter()
+        .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
+        .collect()
+}
+
+/// The actuator input of the frame step t → t + 1: anchors at both ends and
+/// which anchors may grasp. Grasps are captured at frame 0 only, from every
+/// anchor (the hands hold the object when the clip starts), so a rollout
+/// replayed frame by frame — as the fitting's backward pass does — sees the
+/// same couplings as the forward pass.
+pub fn hand_step(bundle: &Bundle, t: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<bool>) {
+    let from = hand_anchors(bundle, t);
+    let grasp = vec![t == 0; from.len()];
+    (from, hand_anchors(bundle, t + 1), grasp)
 }

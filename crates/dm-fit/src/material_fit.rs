@@ -1,0 +1,210 @@
+//! Stage 1 of the fit (method.md §7): the material fields (per-patch E, ν
+//! and expert logits) learnt by gradient descent through the
+//! differentiable simulator on the train frames.
+//!
+//! One iteration: an open-loop rollout from frame 0 driven by the observed
+//! hands, keeping each frame's start state; the track loss of every frame;
+//! then frames are replayed backwards, each re-simulated with a tape of
+//! its last `window` substeps and differentiated, the state adjoint
+//! carried from frame to frame (truncated BPTT); the per-particle
+//! material gradients go back to the patches, and Adam takes a clipped step.
+
+use crate::loss::track::TrackMatch;
+use crate::optim::{Adam, AdamConfig, ClipConfig, OptimError, ParamSet, clip_physics_gradients};
+use dm_bundle::Bundle;
+use dm_model::{ExpertChoice, ModelError, WorldModel, hand_step};
+use dm_mpm::g2p_backward::ParticleGrads;
+use dm_mpm::real::Vec3;
+use dm_mpm::{PatchParams, SimError};
+use serde::{Deserialize, Serialize};
+
+/// Why a fit failed.
+#[derive(Debug, thiserror::Error)]
+pub enum FitError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Simulation(#[from] SimError),
+    #[error(transparent)]
+    Optimiser(#[from] OptimError),
+    #[error(transparent)]
+    Loss(#[from] crate::loss::LossError),
+    #[error("invalid fit option `{option}`: {problem}")]
+    InvalidOption { option: String, problem: String },
+}
+
+/// Options of the material stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialFitConfig {
+    /// Gradient steps.
+    pub iterations: usize,
+    /// Adam learning rate on the unbounded parameters.
+    pub learning_rate: f64,
+    /// Substeps differentiated per frame (truncated BPTT).
+    pub window: usize,
+    /// Frames used (default: the bundle's train split).
+    pub frames: Option<usize>,
+}
+
+impl Default for MaterialFitConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 20,
+            learning_rate: 0.1,
+            window: 20,
+            frames: None,
+        }
+    }
+}
+
+/// One iteration's record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IterationReport {
+    pub iteration: usize,
+    /// Mean track loss over the frames (m²), before the step.
+    pub loss: f64,
+    pub youngs_median_pa: f64,
+    pub poisson_median: f64,
+    pub seconds: f64,
+}
+
+fn observed(bundle: &Bundle, t: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
+    let points = bundle.tracks.object_points.index_axis(ndarray::Axis(0), t);
+    let positions = points
+        .outer_iter()
+        .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
+        .collect();
+    (positions, bundle.tracks.object_visibility.row(t).to_vec())
+}
+
+/// The train-split track loss of `model` over `frames` frames and its
+/// gradient with respect to the patch parameters.
+pub fn loss_and_gradient(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    window: usize,
+) -> Result<(f64, PatchParams), FitError> {
+    let frames = frames.min(bundle.frame_count());
+    if frames < 2 {
+        return Err(FitError::InvalidOption {
+            option: "frames".into(),
+            problem: "need at least 2 frames".into(),
+        });
+    }
+    let steps = frames - 1;
+    let mut world = model.world()?;
+    let n = world.particle_count();
+    let matcher = TrackMatch::new(&model.particles, &observed(bundle, 0).0)?;
+
+    // Forward: checkpoints at frame starts, loss gradients at frame ends.
+    let mut checkpoints = Vec::with_capacity(steps);
+    let mut frame_grads: Vec<Vec<[f64; 3]>> = Vec::with_capacity(steps);
+    let mut loss = 0.0;
+    for t in 0..steps {
+        checkpoints.push(world.state());
+        let (from, to, grasp) = hand_step(bundle, t);
+        world.step_frame(&from, &to, &grasp)?;
+        let (points, visible) = observed(bundle, t + 1);
+        let value = matcher.track_loss(&world.positions(), &points, &visible)?;
+        loss += value.value / steps as f64;
+        frame_grads.push(
+            value
+                .grad
+                .iter()
+                .map(|g| g.map(|c| c / steps as f64))
+                .collect(),
+        );
+    }
+
+    // Backward: replay each frame with a tape, newest first.
+    let mut carried = ParticleGrads::<f32>::zeros(n);
+    let mut grad_mu = vec![0.0f32; n];
+    let mut grad_lambda = vec![0.0f32; n];
+    let mut grad_weights = vec![[0.0f32; 3]; n];
+    for t in (0..steps).rev() {
+        for (c, g) in carried.x.iter_mut().zip(&frame_grads[t]) {
+            *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
+        }
+        world.set_state(&checkpoints[t])?;
+        let (from, to, grasp) = hand_step(bundle, t);
+        let tape = world.step_frame_taped(&from, &to, &grasp, window)?;
+        let g = world.backward_frame(&tape, &carried)?;
+        for p in 0..n {
+            grad_mu[p] += g.mu[p];
+            grad_lambda[p] += g.lambda[p];
+            for e in 0..3 {
+                grad_weights[p][e] += g.weights[p][e];
+            }
+        }
+        carried = g.state;
+    }
+    let mut grads = model.patches.particle_material_vjp(
+        &model.params,
+        &model.bounds,
+        &grad_mu,
+        &grad_lambda,
+        &grad_weights,
+    );
+    if model.options.experts == ExpertChoice::Nh {
+        // A single expert has no mixture to learn.
+        grads.logits.iter_mut().for_each(|l| *l = [0.0; 3]);
+    }
+    Ok((loss, grads))
+}
+
+fn to_param_set(p: &PatchParams) -> Result<ParamSet, OptimError> {
+    ParamSet::new()
+        .with_group("youngs_raw", p.youngs_raw.clone())?
+        .with_group("poisson_raw", p.poisson_raw.clone())?
+        .with_group("logits", p.logits.iter().flatten().copied().collect())
+}
+
+fn from_param_set(set: &ParamSet, into: &mut PatchParams) {
+    if let Some(v) = set.get("youngs_raw") {
+        into.youngs_raw.copy_from_slice(v);
+    }
+    if let Some(v) = set.get("poisson_raw") {
+        into.poisson_raw.copy_from_slice(v);
+    }
+    if let Some(v) = set.get("logits") {
+        for (l, chunk) in into.logits.iter_mut().zip(v.chunks_exact(3)) {
+            *l = [chunk[0], chunk[1], chunk[2]];
+        }
+    }
+}
+
+/// Runs the material stage on `model` in place, reporting each iteration.
+pub fn fit_material(
+    model: &mut WorldModel,
+    bundle: &Bundle,
+    config: &MaterialFitConfig,
+    on_iteration: &mut dyn FnMut(&IterationReport),
+) -> Result<Vec<IterationReport>, FitError> {
+    let frames = config
+        .frames
+        .unwrap_or(bundle.meta.split.train[1])
+        .min(bundle.frame_count());
+    let mut adam = Adam::new(AdamConfig::with_learning_rate(config.learning_rate))?;
+    let mut params = to_param_set(&model.params)?;
+    let mut reports = Vec::with_capacity(config.iterations);
+    for iteration in 0..config.iterations {
+        let start = std::time::Instant::now();
+        let (loss, grads) = loss_and_gradient(model, bundle, frames, config.window)?;
+        let mut grads = to_param_set(&grads)?;
+        clip_physics_gradients(&mut grads, &ClipConfig::default())?;
+        let (youngs, poisson) = model.material_medians();
+        adam.step(&mut params, &grads)?;
+        from_param_set(&params, &mut model.params);
+        let report = IterationReport {
+            iteration,
+            loss,
+            youngs_median_pa: youngs,
+            poisson_median: poisson,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        on_iteration(&report);
+        reports.push(report);
+    }
+    Ok(reports)
+}

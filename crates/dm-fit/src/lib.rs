@@ -20,3 +20,5 @@
 pub mod loss;
 pub mod material_fit;
 pub mod optim;
+pub mod plot;
+pub mod run;

@@ -29,6 +29,8 @@ pub enum FitError {
     Optimiser(#[from] OptimError),
     #[error(transparent)]
     Loss(#[from] crate::loss::LossError),
+    #[error(transparent)]
+    Bundle(#[from] dm_bundle::BundleError),
     #[error("invalid fit option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }
@@ -153,14 +155,14 @@ pub fn loss_and_gradient(
     Ok((loss, grads))
 }
 
-fn to_param_set(p: &PatchParams) -> Result<ParamSet, OptimError> {
+pub(crate) fn to_param_set(p: &PatchParams) -> Result<ParamSet, OptimError> {
     ParamSet::new()
         .with_group("youngs_raw", p.youngs_raw.clone())?
         .with_group("poisson_raw", p.poisson_raw.clone())?
         .with_group("logits", p.logits.iter().flatten().copied().collect())
 }
 
-fn from_param_set(set: &ParamSet, into: &mut PatchParams) {
+pub(crate) fn from_param_set(set: &ParamSet, into: &mut PatchParams) {
     if let Some(v) = set.get("youngs_raw") {
         into.youngs_raw.copy_from_slice(v);
     }
@@ -174,6 +176,40 @@ fn from_param_set(set: &ParamSet, into: &mut PatchParams) {
     }
 }
 
+/// Frames the material stage uses: the train split unless told otherwise.
+pub fn fit_frames(bundle: &Bundle, config: &MaterialFitConfig) -> usize {
+    config
+        .frames
+        .unwrap_or(bundle.meta.split.train[1])
+        .min(bundle.frame_count())
+}
+
+/// One clipped Adam step of the material stage on `model` (in place).
+pub fn material_step(
+    model: &mut WorldModel,
+    bundle: &Bundle,
+    config: &MaterialFitConfig,
+    adam: &mut Adam,
+    iteration: usize,
+) -> Result<IterationReport, FitError> {
+    let start = std::time::Instant::now();
+    let (loss, grads) =
+        loss_and_gradient(model, bundle, fit_frames(bundle, config), config.window)?;
+    let mut grads = to_param_set(&grads)?;
+    clip_physics_gradients(&mut grads, &ClipConfig::default())?;
+    let (youngs, poisson) = model.material_medians();
+    let mut params = to_param_set(&model.params)?;
+    adam.step(&mut params, &grads)?;
+    from_param_set(&params, &mut model.params);
+    Ok(IterationReport {
+        iteration,
+        loss,
+        youngs_median_pa: youngs,
+        poisson_median: poisson,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
 /// Runs the material stage on `model` in place, reporting each iteration.
 pub fn fit_material(
     model: &mut WorldModel,
@@ -181,30 +217,32 @@ pub fn fit_material(
     config: &MaterialFitConfig,
     on_iteration: &mut dyn FnMut(&IterationReport),
 ) -> Result<Vec<IterationReport>, FitError> {
-    let frames = config
-        .frames
-        .unwrap_or(bundle.meta.split.train[1])
-        .min(bundle.frame_count());
     let mut adam = Adam::new(AdamConfig::with_learning_rate(config.learning_rate))?;
-    let mut params = to_param_set(&model.params)?;
     let mut reports = Vec::with_capacity(config.iterations);
     for iteration in 0..config.iterations {
-        let start = std::time::Instant::now();
-        let (loss, grads) = loss_and_gradient(model, bundle, frames, config.window)?;
-        let mut grads = to_param_set(&grads)?;
-        clip_physics_gradients(&mut grads, &ClipConfig::default())?;
-        let (youngs, poisson) = model.material_medians();
-        adam.step(&mut params, &grads)?;
-        from_param_set(&params, &mut model.params);
-        let report = IterationReport {
-            iteration,
-            loss,
-            youngs_median_pa: youngs,
-            poisson_median: poisson,
-            seconds: start.elapsed().as_secs_f64(),
-        };
+        let report = material_step(model, bundle, config, &mut adam, iteration)?;
         on_iteration(&report);
         reports.push(report);
     }
     Ok(reports)
+}
+
+/// Forward-only mean track loss over the first `frames` frames (for the
+/// gain search); a diverging rollout scores infinity.
+pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<f64, FitError> {
+    let frames = frames.min(bundle.frame_count());
+    let matcher = TrackMatch::new(&model.particles, &observed(bundle, 0).0)?;
+    let mut world = model.world()?;
+    let mut loss = 0.0;
+    for t in 0..frames.saturating_sub(1) {
+        let (from, to, grasp) = hand_step(bundle, t);
+        if world.step_frame(&from, &to, &grasp).is_err() {
+            return Ok(f64::INFINITY);
+        }
+        let (points, visible) = observed(bundle, t + 1);
+        loss += matcher
+            .track_loss(&world.positions(), &points, &visible)?
+            .value;
+    }
+    Ok(loss / (frames.saturating_sub(1)).max(1) as f64)
 }

@@ -74,7 +74,7 @@ impl Default for ModelOptions {
 }
 
 /// A world model ready to roll out.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorldModel {
     pub options: ModelOptions,
     pub physics: PhysicsConfig,

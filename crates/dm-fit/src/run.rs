@@ -1,0 +1,303 @@
+//! The whole fit of one scene (method.md §7, stages 1–2): material with
+//! default actuator gains, CMA-ES selection of the gains warm-started from
+//! stage 1, material again with the selected gains. Every iteration ends
+//! with a checkpoint, so an interrupted fit resumes where it stopped.
+
+use crate::material_fit::{
+    FitError, IterationReport, MaterialFitConfig, fit_frames, material_step, train_loss,
+};
+use crate::optim::{Adam, AdamConfig, Bounds, Cmaes, CmaesOptions};
+use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
+use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Options of `dm-fit`: its CLI and the run record in `fit_report.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+pub struct FitOptions {
+    #[command(flatten)]
+    pub model: ModelOptions,
+    /// Gradient steps of stage 1 (material, default gains).
+    #[arg(long, default_value_t = 12)]
+    pub iters: usize,
+    /// Gradient steps of stage 2 (material, selected gains).
+    #[arg(long, default_value_t = 6)]
+    pub stage2_iters: usize,
+    /// Adam learning rate on the unbounded material parameters.
+    #[arg(long, default_value_t = 0.1)]
+    pub lr: f64,
+    /// Substeps differentiated per frame (truncated BPTT).
+    #[arg(long, default_value_t = 20)]
+    pub window: usize,
+    /// Rollouts spent on the CMA-ES gain search (0 keeps the default gains).
+    #[arg(long, default_value_t = 24)]
+    pub gain_evals: u64,
+    /// Seed of the gain search.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    Material1,
+    Gains,
+    Material2,
+    Done,
+}
+
+/// One evaluated gain pair of the CMA-ES search.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GainTrial {
+    pub kp: f64,
+    pub kd: f64,
+    pub loss: f64,
+}
+
+/// Everything needed to resume a fit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    pub options: FitOptions,
+    pub stage: Stage,
+    pub iteration: usize,
+    pub model: WorldModel,
+    pub adam: Adam,
+    pub history: Vec<IterationReport>,
+    pub gain_search: Vec<GainTrial>,
+    pub seconds: f64,
+}
+
+/// `fit_report.json` (contract keys: `material.E_median_pa`,
+/// `material.nu_median`, `dca.kp`, `dca.kd`, `loss.final`, `seconds`,
+/// `options`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FitReport {
+    pub material: serde_json::Value,
+    pub dca: serde_json::Value,
+    pub loss: serde_json::Value,
+    pub seconds: f64,
+    pub options: FitOptions,
+    pub frames: usize,
+    pub gain_search: Vec<GainTrial>,
+}
+
+pub const CHECKPOINT_FILE: &str = "checkpoint.json";
+
+fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig {
+    MaterialFitConfig {
+        iterations,
+        learning_rate: options.lr,
+        window: options.window,
+        frames: None,
+    }
+}
+
+/// CMA-ES over (log10 kp, log10 kd) in [1, 1e5] × [0.1, 1e3] (1/s², 1/s),
+/// starting from the current gains; the train track loss of a forward
+/// rollout is the fitness.
+fn select_gains(
+    model: &mut WorldModel,
+    bundle: &Bundle,
+    options: &FitOptions,
+) -> Result<Vec<GainTrial>, FitError> {
+    let frames = fit_frames(bundle, &material_config(options, 0));
+    let start = [model.actuator.kp.log10(), model.actuator.kd.log10()];
+    let bounds = Bounds::new(vec![0.0, -1.0], vec![5.0, 3.0])?;
+    // Hansen's default population for 2 dimensions is 6; a smaller budget
+    // shrinks the population so that at least one generation runs.
+    let population = options.gain_evals.clamp(2, 6);
+    let cma_options = CmaesOptions {
+        seed: options.seed,
+        population_size: Some(population as usize),
+        max_evaluations: Some(options.gain_evals.max(population)),
+        ..CmaesOptions::default()
+    };
+    let mut search = Cmaes::new(&start, 0.5, Some(bounds), cma_options)?;
+    let mut trials = Vec::new();
+    let mut best = GainTrial {
+        kp: model.actuator.kp,
+        kd: model.actuator.kd,
+        loss: train_loss(model, bundle, frames)?,
+    };
+    trials.push(best);
+    while search.should_stop().is_none() && (trials.len() as u64) < options.gain_evals {
+        let population = search.ask();
+        let mut fitness = Vec::with_capacity(population.len());
+        for x in &population {
+            let mut candidate = model.clone();
+            candidate.actuator.kp = 10f64.powf(x[0]);
+            candidate.actuator.kd = 10f64.powf(x[1]);
+            let loss = train_loss(&candidate, bundle, frames)?;
+            let trial = GainTrial {
+                kp: candidate.actuator.kp,
+                kd: candidate.actuator.kd,
+                loss,
+            };
+            if loss < best.loss {
+                best = trial;
+            }
+            trials.push(trial);
+            fitness.push(loss);
+        }
+        search.tell(&fitness)?;
+    }
+    model.actuator.kp = best.kp;
+    model.actuator.kd = best.kd;
+    Ok(trials)
+}
+
+/// How a call to [`run_fit`] ended.
+#[derive(Clone, Debug)]
+pub enum FitOutcome {
+    Finished(Box<FitReport>),
+    /// Stopped after the requested number of steps; resume to continue.
+    Paused {
+        stage: Stage,
+        iteration: usize,
+    },
+}
+
+/// Runs (or resumes) the fit and writes the model directory. With
+/// `stop_after = Some(n)` it pauses after n checkpointed steps (time-boxed
+/// runs; rerun with `resume` to continue).
+pub fn run_fit(
+    bundle: &Bundle,
+    options: &FitOptions,
+    out: &Path,
+    resume: bool,
+    stop_after: Option<usize>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FitOutcome, FitError> {
+    std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
+    let checkpoint_path = out.join(CHECKPOINT_FILE);
+    let mut state = if resume && checkpoint_path.is_file() {
+        let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
+        if saved.options != *options {
+            return Err(FitError::InvalidOption {
+                option: "--resume".into(),
+                problem: format!(
+                    "{} was written with different options",
+                    checkpoint_path.display()
+                ),
+            });
+        }
+        progress(&format!(
+            "resuming at {:?}, iteration {}",
+            saved.stage, saved.iteration
+        ));
+        saved
+    } else {
+        Checkpoint {
+            options: options.clone(),
+            stage: Stage::Material1,
+            iteration: 0,
+            model: WorldModel::from_bundle(bundle, &options.model)?,
+            adam: Adam::new(AdamConfig::with_learning_rate(options.lr))?,
+            history: Vec::new(),
+            gain_search: Vec::new(),
+            seconds: 0.0,
+        }
+    };
+    let mut steps = 0;
+    loop {
+        if stop_after.is_some_and(|n| steps >= n) && state.stage != Stage::Done {
+            return Ok(FitOutcome::Paused {
+                stage: state.stage,
+                iteration: state.iteration,
+            });
+        }
+        steps += 1;
+        let clock = std::time::Instant::now();
+        match state.stage {
+            Stage::Material1 | Stage::Material2 => {
+                let total = if state.stage == Stage::Material1 {
+                    options.iters
+                } else {
+                    options.stage2_iters
+                };
+                if state.iteration < total {
+                    let config = material_config(options, total);
+                    let index = state.history.len();
+                    let report =
+                        material_step(&mut state.model, bundle, &config, &mut state.adam, index)?;
+                    progress(&format!(
+                        "{:?} {}/{}: loss {:.3e} m², E {:.3e} Pa, nu {:.3}",
+                        state.stage,
+                        state.iteration + 1,
+                        total,
+                        report.loss,
+                        report.youngs_median_pa,
+                        report.poisson_median
+                    ));
+                    state.history.push(report);
+                    state.iteration += 1;
+                } else {
+                    state.stage = if state.stage == Stage::Material1 {
+                        Stage::Gains
+                    } else {
+                        Stage::Done
+                    };
+                    state.iteration = 0;
+                }
+            }
+            Stage::Gains => {
+                if options.gain_evals > 0 && options.model.actuators != ActuatorChoice::Rigid {
+                    progress("selecting actuator gains (CMA-ES)");
+                    state.gain_search = select_gains(&mut state.model, bundle, options)?;
+                }
+                state.adam = Adam::new(AdamConfig::with_learning_rate(options.lr))?;
+                state.stage = Stage::Material2;
+            }
+            Stage::Done => break,
+        }
+        state.seconds += clock.elapsed().as_secs_f64();
+        write_json_atomic(&checkpoint_path, &state)?;
+    }
+    let frames = fit_frames(bundle, &material_config(options, 0));
+    let final_loss = train_loss(&state.model, bundle, frames)?;
+    let (youngs, poisson) = state.model.material_medians();
+    let report = FitReport {
+        material: serde_json::json!({ "E_median_pa": youngs, "nu_median": poisson }),
+        dca: serde_json::json!({ "kp": state.model.actuator.kp, "kd": state.model.actuator.kd, "mode": state.model.actuator.mode }),
+        loss: serde_json::json!({
+            "initial": state.history.first().map(|r| r.loss),
+            "final": final_loss,
+            "history": state.history,
+        }),
+        seconds: state.seconds,
+        options: options.clone(),
+        frames,
+        gain_search: state.gain_search.clone(),
+    };
+    write_model(&state.model, out)?;
+    write_json_atomic(&out.join("fit_report.json"), &report)?;
+    let curve: Vec<f64> = state.history.iter().map(|r| r.loss).collect();
+    let png = crate::plot::loss_curve(&curve, options.iters);
+    write_file_atomic(&out.join("loss_curve.png"), |temp| {
+        png.save_with_format(temp, image::ImageFormat::Png)
+            .map_err(|e| std::io::Error::other(e.to_string()))
+    })?;
+    Ok(FitOutcome::Finished(Box::new(report)))
+}
+
+/// The model directory: `model.json` (everything to rebuild the world) and
+/// the per-particle material fields as `.npy`.
+fn write_model(model: &WorldModel, out: &Path) -> Result<(), FitError> {
+    write_json_atomic(&out.join("model.json"), model)?;
+    let (youngs, poisson, weights) = model.patches.particle_fields(&model.params, &model.bounds);
+    let field =
+        |values: Vec<f64>| ndarray::Array1::from_vec(values.iter().map(|&v| v as f32).collect());
+    let weights = ndarray::Array2::from_shape_fn((weights.len(), 3), |(i, k)| weights[i][k] as f32);
+    for (name, array) in [
+        ("youngs_pa.npy", field(youngs)),
+        ("poisson.npy", field(poisson)),
+    ] {
+        write_file_atomic(&out.join(name), |temp| {
+            write_npy_file(temp, &array).map_err(|e| std::io::Error::other(e.to_string()))
+        })?;
+    }
+    write_file_atomic(&out.join("expert_weights.npy"), |temp| {
+        write_npy_file(temp, &weights).map_err(|e| std::io::Error::other(e.to_string()))
+    })?;
+    Ok(())
+}

@@ -1,0 +1,78 @@
+//! `dm-fit`: learn a scene's world model from its bundle (stages 1–2).
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use dm_bundle::Bundle;
+use dm_fit::run::{FitOptions, FitOutcome, run_fit};
+use indicatif::ProgressBar;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(name = "dm-fit", about = "Fit a world model to a scene bundle")]
+struct Cli {
+    /// Scene bundle directory.
+    bundle: PathBuf,
+    /// Model directory (created; holds checkpoints, the model and the report).
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue from OUT/checkpoint.json after an interruption.
+    #[arg(long)]
+    resume: bool,
+    /// Pause after this many steps (time-boxed runs; continue with --resume).
+    #[arg(long)]
+    stop_after: Option<usize>,
+    #[command(flatten)]
+    options: FitOptions,
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let bundle = Bundle::open(&cli.bundle)
+        .with_context(|| format!("reading bundle {}", cli.bundle.display()))?;
+    let spinner = ProgressBar::new_spinner();
+    spinner.enable_steady_tick(Duration::from_millis(200));
+    let outcome = run_fit(
+        &bundle,
+        &cli.options,
+        &cli.out,
+        cli.resume,
+        cli.stop_after,
+        &mut |message| {
+            spinner.println(message);
+            spinner.set_message(message.to_string());
+        },
+    )
+    .with_context(|| {
+        format!(
+            "fitting {} into {}",
+            cli.bundle.display(),
+            cli.out.display()
+        )
+    })?;
+    spinner.finish_and_clear();
+    let report = match outcome {
+        FitOutcome::Finished(report) => report,
+        FitOutcome::Paused { stage, iteration } => {
+            println!("dm-fit: paused at {stage:?}, iteration {iteration}; continue with --resume");
+            return Ok(());
+        }
+    };
+    println!(
+        "dm-fit: E {:.3e} Pa, nu {:.3}, kp {:.3e}, kd {:.3e}; train loss {} -> {:.3e} m² in {:.1} s",
+        report.material["E_median_pa"].as_f64().unwrap_or(f64::NAN),
+        report.material["nu_median"].as_f64().unwrap_or(f64::NAN),
+        report.dca["kp"].as_f64().unwrap_or(f64::NAN),
+        report.dca["kd"].as_f64().unwrap_or(f64::NAN),
+        report.loss["initial"]
+            .as_f64()
+            .map_or("-".into(), |v| format!("{v:.3e}")),
+        report.loss["final"].as_f64().unwrap_or(f64::NAN),
+        report.seconds
+    );
+    println!(
+        "  wrote {}/{{model.json, youngs_pa.npy, poisson.npy, expert_weights.npy, fit_report.json, loss_curve.png}}",
+        cli.out.display()
+    );
+    Ok(())
+}

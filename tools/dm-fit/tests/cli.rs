@@ -1,0 +1,113 @@
+//! `dm-fit` from the command line (issue 3): the report's contract keys,
+//! and a fit paused and resumed gives the same model as an uninterrupted one.
+
+use dm_synth::{Preset, SynthConfig};
+use std::path::Path;
+use std::process::{Command, Output};
+
+const FAST: &[&str] = &[
+    "--iters",
+    "2",
+    "--stage2-iters",
+    "1",
+    "--gain-evals",
+    "4",
+    "--patches",
+    "8",
+];
+
+fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
+    let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+        .arg(scene)
+        .arg("--out")
+        .arg(out)
+        .args(FAST)
+        .args(extra)
+        .output()
+        .expect("dm-fit runs");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
+#[test]
+fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    dm_synth::generate(
+        &SynthConfig::tiny(Preset::Cloth, 4),
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+
+    let whole = dir.path().join("whole");
+    fit(&scene, &whole, &[]);
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(whole.join("fit_report.json")).expect("report"))
+            .expect("json");
+    for key in ["E_median_pa", "nu_median"] {
+        assert!(
+            report["material"][key].as_f64().is_some_and(f64::is_finite),
+            "material.{key}"
+        );
+    }
+    for key in ["kp", "kd"] {
+        assert!(
+            report["dca"][key].as_f64().is_some_and(|v| v > 0.0),
+            "dca.{key}"
+        );
+    }
+    assert!(report["loss"]["final"].as_f64().is_some_and(f64::is_finite));
+    assert!(report["seconds"].as_f64().is_some());
+    assert_eq!(report["options"]["iters"], 2);
+    for file in [
+        "model.json",
+        "youngs_pa.npy",
+        "poisson.npy",
+        "expert_weights.npy",
+        "loss_curve.png",
+    ] {
+        assert!(whole.join(file).is_file(), "{file}");
+    }
+
+    let split = dir.path().join("split");
+    let paused = fit(&scene, &split, &["--stop-after", "2"]);
+    assert!(String::from_utf8_lossy(&paused.stdout).contains("paused"));
+    assert!(!split.join("model.json").exists());
+    fit(&scene, &split, &["--resume"]);
+    let model_whole = std::fs::read(whole.join("model.json")).expect("model");
+    let model_split = std::fs::read(split.join("model.json")).expect("model");
+    assert!(
+        model_whole == model_split,
+        "a resumed fit must equal an uninterrupted one"
+    );
+}
+
+#[test]
+fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    dm_synth::generate(
+        &SynthConfig::tiny(Preset::Rope, 4),
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let out = dir.path().join("model");
+    fit(&scene, &out, &["--stop-after", "1"]);
+    let result = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .args(["--iters", "5", "--resume"])
+        .output()
+        .expect("dm-fit runs");
+    assert!(!result.status.success());
+    assert!(String::from_utf8_lossy(&result.stderr).contains("different options"));
+}

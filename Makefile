@@ -19,15 +19,21 @@ setup:
 build: setup
 	$(CARGO) build --release --workspace --bins
 
+# A short fit keeps the demo to a few minutes on 2 cores; see dm-fit --help.
+DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4
+
 demo: build
 	@rm -rf $(OUT) && mkdir -p $(OUT)
 	./target/release/dm-synth --preset $(PRESET) --seed $(SEED) --out $(OUT)/scene --truth $(OUT)/scene.truth.json
-	./target/release/dm-sim $(OUT)/scene --out $(OUT)/sim
+	./target/release/dm-sim $(OUT)/scene --out $(OUT)/untrained
+	./target/release/dm-fit $(OUT)/scene --out $(OUT)/model $(DEMO_FIT)
+	./target/release/dm-sim $(OUT)/scene --model-dir $(OUT)/model --out $(OUT)/sim
 	@echo
 	@echo "== DeformMaster demo summary =="
 	@echo "scene bundle : $(OUT)/scene   (truth kept outside: $(OUT)/scene.truth.json)"
-	@echo "rollout      : $(OUT)/sim/rollout.npy, $(OUT)/sim/summary.json"
-	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/scene/views/cam0/rgb/00000.png"
+	@python3 -c 'import json,sys; t=json.load(open("$(OUT)/scene.truth.json")); u=json.load(open("$(OUT)/untrained/summary.json")); f=json.load(open("$(OUT)/sim/summary.json")); r=json.load(open("$(OUT)/model/fit_report.json")); print("truth        : E %.3g Pa, nu %.2f" % (t["material"]["E_pa"], t["material"]["nu"])); print("fitted       : E %.3g Pa, nu %.2f, kp %.3g, kd %.3g (%.0f s)" % (r["material"]["E_median_pa"], r["material"]["nu_median"], r["dca"]["kp"], r["dca"]["kd"], r["seconds"])); print("track error  : held-out %.1f mm untrained -> %.1f mm fitted" % (1e3*u["track_error_m"]["test"], 1e3*f["track_error_m"]["test"]))' || true
+	@echo "model        : $(OUT)/model (model.json, fit_report.json)"
+	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 
 test: setup
 	$(CARGO) test --workspace

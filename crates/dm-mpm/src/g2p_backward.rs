@@ -9,8 +9,8 @@
 //! B̄ = 4/dx² C̄'; then ū_i += w (ṽ̄ + B̄ (x_i − x_p)) and
 //! x̄ += Σ ∇w (u·ṽ̄ + uᵀ B̄ (x_i − x_p)) − Σ w B̄ᵀ u.
 
-use crate::grid::{Grid, stencil};
-use crate::p2g::BlockSchedule;
+use crate::grid::{Grid, StencilMoments, gather_moments, stencil};
+use crate::p2g::{BlockSchedule, scatter_affine};
 use crate::real::{Lane4, Mat3, Real, Vec3};
 use crate::state::Consts;
 use crate::svd::clamp_singular_values;
@@ -40,16 +40,26 @@ impl<T: Real> ParticleGrads<T> {
 /// Gradient of the node velocity u_i (lane 3 unused).
 pub type NodeVelocityGrads<T> = Vec<<T as Real>::Lane4>;
 
+#[inline(always)]
 fn xyz<T: Real>(l: T::Lane4) -> Vec3<T> {
     let a = l.to_array();
     Vec3::new(a[0], a[1], a[2])
 }
 
+/// What pass 1 of [`g2p_backward`] hands to its scatter, per particle: the
+/// adjoints of the gathered velocity ṽ and of B = Σ w u (x_i − x_p)ᵀ.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GatherAdjoint<T: Real> {
+    pub v_tilde: Vec3<T>,
+    pub b: Mat3<T>,
+}
+
 /// Adjoint of `g2p`. `x`, `f` are the particle state before the gather,
 /// `grid` holds the updated node velocities, `out` the adjoint of the
 /// gather's outputs. Writes the adjoint of x and F into `grad_in` (v and C
-/// are not read by the gather: their entries are set to zero) and the
-/// adjoint of the node velocities into `grad_u` (overwritten).
+/// are not read by the gather: their entries are left untouched), the
+/// adjoint of the node velocities into `grad_u` (overwritten) and uses
+/// `gather_bar` as per-particle scratch.
 pub fn g2p_backward<T: Real>(
     k: &Consts<T>,
     schedule: &BlockSchedule,
@@ -59,42 +69,30 @@ pub fn g2p_backward<T: Real>(
     out: &ParticleGrads<T>,
     grad_in: &mut ParticleGrads<T>,
     grad_u: &mut NodeVelocityGrads<T>,
+    gather_bar: &mut Vec<GatherAdjoint<T>>,
 ) {
     let n = x.len();
     let res = k.res;
     let apic_scale = T::lit(4.0) * k.inv_dx * k.inv_dx;
     // Pass 1 (gather, parallel over particles): the per-particle adjoints
     // and the two quantities pass 2 scatters to the grid.
-    let mut v_tilde_bar = vec![Vec3::zeros(); n];
-    let mut b_bar = vec![Mat3::zeros(); n];
+    gather_bar.resize(n, GatherAdjoint::default());
     (
         grad_in.x.par_iter_mut(),
         grad_in.f.par_iter_mut(),
-        v_tilde_bar.par_iter_mut(),
-        b_bar.par_iter_mut(),
+        gather_bar.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(p, (gx, gf, vtb, bb))| {
+        .for_each(|(p, (gx, gf, bar))| {
             let st = stencil(&x[p], &k.origin, k.inv_dx, res);
-            let u = |i: usize, j: usize, kk: usize| {
-                xyz::<T>(
-                    grid.nodes[((st.base[0] + i) * res + st.base[1] + j) * res + st.base[2] + kk],
-                )
-            };
-            // Forward recomputation of this particle's gather.
-            let mut v_tilde = Vec3::zeros();
-            let mut b = Mat3::zeros();
-            for i in 0..3 {
-                for j in 0..3 {
-                    for kk in 0..3 {
-                        let w = st.w[0][i] * st.w[1][j] * st.w[2][kk];
-                        let ui = u(i, j, kk);
-                        v_tilde += ui * w;
-                        b += (ui * w) * st.node_offset(k.dx, i, j, kk).transpose();
-                    }
-                }
-            }
+            // One pass over the stencil yields both the forward gather
+            // (sum, moment: the same sums, in the same order, as `g2p`) and
+            // the sums its position adjoint needs (slope, slope_moment).
+            let m = gather_moments::<T>(&st, &grid.nodes, res);
+            let v_tilde = xyz::<T>(m.sum);
+            let s_cols = m.moment.map(xyz::<T>);
+            let b = (Mat3::from_columns(&s_cols) - v_tilde * st.frac.transpose()) * k.dx;
             let c_new = b * apic_scale;
             let v_new = v_tilde * k.particle_damping_factor;
             let f_pre = (Mat3::identity() + c_new * k.dt) * f[p];
@@ -121,41 +119,50 @@ pub fn g2p_backward<T: Real>(
             *gf = (Mat3::identity() + c_new * k.dt).transpose() * f_bar;
             let vt_bar = v_new_bar * k.particle_damping_factor;
             let bbar = c_new_bar * apic_scale;
-            // Through the weights and the node offsets.
-            let slopes = st.slopes();
-            let mut gx_acc = x_bar;
-            for i in 0..3 {
-                for j in 0..3 {
-                    for kk in 0..3 {
-                        let w = st.w[0][i] * st.w[1][j] * st.w[2][kk];
-                        let ui = u(i, j, kk);
-                        let d = st.node_offset(k.dx, i, j, kk);
-                        let grad_w = st.weight_gradient(&slopes, k.inv_dx, i, j, kk);
-                        gx_acc += grad_w * (ui.dot(&vt_bar) + ui.dot(&(bbar * d)));
-                        gx_acc -= bbar.transpose() * ui * w;
-                    }
-                }
-            }
-            *gx = gx_acc;
-            *vtb = vt_bar;
-            *bb = bbar;
+            *gx = x_bar + gather_position_adjoint(k, &st.frac, &m, &vt_bar, &bbar);
+            *bar = GatherAdjoint {
+                v_tilde: vt_bar,
+                b: bbar,
+            };
         });
-    grad_in.v.iter_mut().for_each(|g| *g = Vec3::zeros());
-    grad_in.c.iter_mut().for_each(|g| *g = Mat3::zeros());
 
-    // Pass 2 (scatter, deterministic colouring): ū_i += w (ṽ̄ + B̄ (x_i − x_p)).
+    // Pass 2 (scatter, deterministic colouring): ū_i += w (ṽ̄ + B̄ (x_i − x_p)),
+    // an affine field in the node offset: ṽ̄ − B̄ frac dx + B̄ dx (i, j, k).
     grad_u.clear();
     grad_u.resize(res * res * res, T::Lane4::default());
+    let zero = T::zero();
+    let lanes = |v: Vec3<T>| T::Lane4::from_array([v.x, v.y, v.z, zero]);
     schedule.scatter(k, x, grad_u, |p, st, nodes| {
-        for i in 0..3 {
-            for j in 0..3 {
-                for kk in 0..3 {
-                    let w = st.w[0][i] * st.w[1][j] * st.w[2][kk];
-                    let g = (v_tilde_bar[p] + b_bar[p] * st.node_offset(k.dx, i, j, kk)) * w;
-                    let node = nodes.node(i, j, kk);
-                    *node += T::Lane4::from_array([g.x, g.y, g.z, T::zero()]);
-                }
-            }
-        }
+        let GatherAdjoint { v_tilde, b } = gather_bar[p];
+        let q0 = lanes(v_tilde - b * (st.frac * k.dx));
+        let cols = [0, 1, 2].map(|c| lanes(b.column(c) * k.dx));
+        scatter_affine::<T>(st, q0, cols, nodes);
     });
+}
+
+/// Position adjoint of the gather through the weights and node offsets,
+/// `Σ_i ∇w_i (u_i·ṽ̄ + u_iᵀ B̄ (x_i − x_p)) − Σ_i w_i B̄ᵀ u_i`, from the
+/// stencil moments of u: with x_i − x_p = (o_i − frac) dx the second sum
+/// is `dx (Σ_b B̄_{:,b}·slope_moment[c][b] − slope[c]·B̄ frac)` per axis c,
+/// and the last is `B̄ᵀ ṽ`.
+#[inline(always)]
+fn gather_position_adjoint<T: Real>(
+    k: &Consts<T>,
+    frac: &Vec3<T>,
+    m: &StencilMoments<T::Lane4>,
+    vt_bar: &Vec3<T>,
+    bbar: &Mat3<T>,
+) -> Vec3<T> {
+    let v_tilde = xyz::<T>(m.sum);
+    let bbar_frac = bbar * frac;
+    let mut g = -(bbar.transpose() * v_tilde);
+    for c in 0..3 {
+        let slope = xyz::<T>(m.slope[c]);
+        let mut through_offsets = -slope.dot(&bbar_frac);
+        for b in 0..3 {
+            through_offsets += bbar.column(b).dot(&xyz::<T>(m.slope_moment[c][b]));
+        }
+        g[c] += (slope.dot(vt_bar) + through_offsets * k.dx) * k.inv_dx;
+    }
+    g
 }

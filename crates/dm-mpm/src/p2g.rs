@@ -80,6 +80,24 @@ impl BlockSchedule {
         &self.order
     }
 
+    /// The box of nodes `[lo, hi)` that the particles' stencils can touch
+    /// (every node P2G writes lies inside it), `None` without particles.
+    pub fn node_box(&self, res: usize) -> Option<([usize; 3], [usize; 3])> {
+        let n = self.blocks_per_axis;
+        let mut lo = [usize::MAX; 3];
+        let mut hi = [0; 3];
+        for &b in self.colours.iter().flatten() {
+            let b = b as usize;
+            let block = [b / (n * n), (b / n) % n, b % n];
+            for a in 0..3 {
+                lo[a] = lo[a].min(block[a] * BLOCK);
+                // Stencil bases in the block, plus the stencil's 3 nodes.
+                hi[a] = hi[a].max((block[a] * BLOCK + BLOCK - 1 + 3).min(res));
+            }
+        }
+        (lo[0] < hi[0]).then_some((lo, hi))
+    }
+
     fn particles_of(&self, block: u32) -> &[u32] {
         let b = block as usize;
         &self.order[self.block_start[b] as usize..self.block_start[b + 1] as usize]
@@ -160,7 +178,6 @@ pub fn p2g<T: Real>(
 ) {
     let mass = &inputs.particles.mass;
     let zero = T::zero();
-    let off = offsets::<T>();
     schedule.scatter(k, &inputs.particles.x, &mut grid.nodes, |p, st, nodes| {
         let (a, momentum) = particle_impulse(k, inputs, p);
         // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
@@ -172,18 +189,34 @@ pub fn p2g<T: Real>(
         let (ax, ay, az) = (col(0), col(1), col(2));
         let q0v = momentum - a * (st.frac * k.dx);
         let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
-        for i in 0..3 {
-            let qi = ax.mul_add(T::Lane4::splat(off[i]), q0);
-            for j in 0..3 {
-                let wij = st.w[0][i] * st.w[1][j];
-                let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
-                let q = [qij, qij + az, qij + az + az];
-                for kk in 0..3 {
-                    let w = T::Lane4::splat(wij * st.w[2][kk]);
-                    let node = nodes.node(i, j, kk);
-                    *node = w.mul_add(q[kk], *node);
-                }
+        scatter_affine::<T>(st, q0, [ax, ay, az], nodes);
+    });
+}
+
+/// Adds `w_i (q0 + cols[0] i + cols[1] j + cols[2] k)` to the node at
+/// stencil offset (i, j, k): an affine field scattered with the B-spline
+/// weights (P2G's momentum and mass, and the adjoint of G2P's gather).
+/// The field is built incrementally, so each node takes one FMA.
+#[inline(always)]
+pub fn scatter_affine<T: Real>(
+    st: &Stencil<T>,
+    q0: T::Lane4,
+    cols: [T::Lane4; 3],
+    nodes: &mut StencilNodes<'_, T::Lane4>,
+) {
+    let off = offsets::<T>();
+    let [ax, ay, az] = cols;
+    for i in 0..3 {
+        let qi = ax.mul_add(T::Lane4::splat(off[i]), q0);
+        for j in 0..3 {
+            let wij = st.w[0][i] * st.w[1][j];
+            let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
+            let q = [qij, qij + az, qij + az + az];
+            for kk in 0..3 {
+                let w = T::Lane4::splat(wij * st.w[2][kk]);
+                let node = nodes.node(i, j, kk);
+                *node = w.mul_add(q[kk], *node);
             }
         }
-    });
+    }
 }

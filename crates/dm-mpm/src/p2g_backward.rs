@@ -5,7 +5,7 @@
 //! Backward (given P̄_i, m̄_i): q̄ = Σ w P̄, Ā = Σ w P̄ (x_i − x_p)ᵀ,
 //! x̄ += Σ ∇w (P̄·(q + A (x_i − x_p)) + m̄ m_p) − Σ w Aᵀ P̄.
 
-use crate::grid::stencil;
+use crate::grid::{gather_moments, stencil};
 use crate::real::{Lane4, Mat3, Real, Vec3};
 use crate::state::Consts;
 use crate::stress::{ImpulseInputs, particle_impulse};
@@ -21,6 +21,13 @@ pub struct ScatterGrads<T> {
 
 /// VJP of particle `p`'s contribution to `p2g`, given the adjoint of the
 /// pre-update grid `[P̄_x, P̄_y, P̄_z, m̄]` per node.
+///
+/// All three sums come from the stencil moments of the node adjoints
+/// (see [`gather_moments`]): with x_i − x_p = (o_i − frac) dx,
+/// q̄ = sum, Ā = (moment − q̄ fracᵀ) dx, and per axis c
+/// Σ ∇w_{i,c} ([P̄_i, m̄_i]·[q, m]) = slope[c]·[q, m] / dx,
+/// Σ ∇w_{i,c} P̄_i·(A d_i) = (Σ_b A_{:,b}·slope_moment[c][b] − slope[c]·A frac),
+/// Σ w Aᵀ P̄ = Aᵀ q̄.
 #[inline]
 pub fn p2g_particle_vjp<T: Real>(
     k: &Consts<T>,
@@ -28,31 +35,27 @@ pub fn p2g_particle_vjp<T: Real>(
     p: usize,
     grad_grid: &[T::Lane4],
 ) -> ScatterGrads<T> {
-    let res = k.res;
     let (a, q) = particle_impulse(k, inputs, p);
     let m = inputs.particles.mass[p];
-    let st = stencil(&inputs.particles.x[p], &k.origin, k.inv_dx, res);
-    let slopes = st.slopes();
-    let mut grad_q = Vec3::zeros();
-    let mut grad_a = Mat3::zeros();
-    let mut grad_x = Vec3::zeros();
-    for i in 0..3 {
-        for j in 0..3 {
-            for kk in 0..3 {
-                let g = grad_grid
-                    [((st.base[0] + i) * res + st.base[1] + j) * res + st.base[2] + kk]
-                    .to_array();
-                let gp = Vec3::new(g[0], g[1], g[2]);
-                let gm = g[3];
-                let w = st.w[0][i] * st.w[1][j] * st.w[2][kk];
-                let d = st.node_offset(k.dx, i, j, kk);
-                grad_q += gp * w;
-                grad_a += (gp * w) * d.transpose();
-                let grad_w = st.weight_gradient(&slopes, k.inv_dx, i, j, kk);
-                grad_x += grad_w * (gp.dot(&(q + a * d)) + gm * m);
-                grad_x -= a.transpose() * gp * w;
-            }
+    let st = stencil(&inputs.particles.x[p], &k.origin, k.inv_dx, k.res);
+    let mo = gather_moments::<T>(&st, grad_grid, k.res);
+    let xyz = |l: T::Lane4| {
+        let a = l.to_array();
+        Vec3::new(a[0], a[1], a[2])
+    };
+    let grad_q = xyz(mo.sum);
+    let moment_cols = mo.moment.map(xyz);
+    let grad_a = (Mat3::from_columns(&moment_cols) - grad_q * st.frac.transpose()) * k.dx;
+    let a_frac = a * st.frac;
+    let mut grad_x = -(a.transpose() * grad_q);
+    for c in 0..3 {
+        let slope = mo.slope[c].to_array();
+        let through_weights = slope[0] * q.x + slope[1] * q.y + slope[2] * q.z + slope[3] * m;
+        let mut through_offsets = -xyz(mo.slope[c]).dot(&a_frac);
+        for b in 0..3 {
+            through_offsets += a.column(b).dot(&xyz(mo.slope_moment[c][b]));
         }
+        grad_x[c] += (through_weights + through_offsets * k.dx) * k.inv_dx;
     }
     ScatterGrads {
         affine: grad_a,

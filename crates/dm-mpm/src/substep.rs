@@ -1,19 +1,19 @@
 //! One MPM substep as a pure function of the particle state, and its
 //! reverse-mode adjoint: stress → P2G → grid update → G2P, each stage
 //! differentiated by its backward twin. The backward pass recomputes the
-//! substep's forward grids from the stored input state (memory: one state
-//! per substep, no grids).
+//! substep's forward grids from the stored input state, unless the frame
+//! tape kept them ([`SubstepCache`], within the tape's memory budget).
 
 use crate::SimError;
 use crate::g2p::{ParticleFailure, g2p};
-use crate::g2p_backward::{NodeVelocityGrads, ParticleGrads, g2p_backward};
-use crate::grid::Grid;
+use crate::g2p_backward::{GatherAdjoint, NodeVelocityGrads, ParticleGrads, g2p_backward};
+use crate::grid::{Grid, GridBox};
 use crate::grid_update::grid_update;
 use crate::grid_update_backward::grid_update_backward;
 use crate::material::ParticleMaterial;
 use crate::p2g::{BlockSchedule, p2g};
 use crate::p2g_backward::p2g_particle_vjp;
-use crate::real::{Real, Vec3};
+use crate::real::{Mat3, Real, Vec3};
 use crate::state::{Consts, Particles};
 use crate::stress::ImpulseInputs;
 use crate::stress_backward::particle_impulse_vjp;
@@ -24,9 +24,13 @@ use rayon::prelude::*;
 pub struct SubstepScratch<T: Real> {
     pub schedule: BlockSchedule,
     pub grid: Grid<T>,
-    grid_pre: Grid<T>,
+    /// The grid right after P2G: written by the backward pass, and by the
+    /// forward pass when `keep_pre_grid` is set (for the tape).
+    pub(crate) grid_pre: Grid<T>,
+    pub(crate) keep_pre_grid: bool,
     grad_u: NodeVelocityGrads<T>,
     grad_pre: Vec<T::Lane4>,
+    gather_bar: Vec<GatherAdjoint<T>>,
 }
 
 impl<T: Real> SubstepScratch<T> {
@@ -35,8 +39,36 @@ impl<T: Real> SubstepScratch<T> {
             schedule: BlockSchedule::default(),
             grid: Grid::new(res),
             grid_pre: Grid::new(res),
+            keep_pre_grid: false,
             grad_u: Vec::new(),
             grad_pre: Vec::new(),
+            gather_bar: Vec::new(),
+        }
+    }
+}
+
+/// What the forward pass of a substep computed that its backward pass
+/// would otherwise recompute: the grid right after P2G (only the box the
+/// particles touch) and the particle bucketing. Both are pure functions of
+/// the substep's input state, so the cached copy is bitwise what the
+/// recomputation gives.
+#[derive(Clone, Debug)]
+pub(crate) struct SubstepCache<T: Real> {
+    pre_grid: Option<GridBox<T>>,
+    schedule: BlockSchedule,
+}
+
+impl<T: Real> SubstepScratch<T> {
+    /// Copies out what the last [`substep_forward`] kept (it must have run
+    /// with `keep_pre_grid` set).
+    pub(crate) fn take_cache(&mut self) -> SubstepCache<T> {
+        let res = self.grid_pre.res;
+        SubstepCache {
+            pre_grid: self
+                .schedule
+                .node_box(res)
+                .map(|(lo, hi)| GridBox::capture(&self.grid_pre, lo, hi)),
+            schedule: self.schedule.clone(),
         }
     }
 }
@@ -108,6 +140,9 @@ pub fn substep_forward<T: Real>(
         external_accel: inputs.external_accel,
     };
     p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
+    if scratch.keep_pre_grid {
+        scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
+    }
     laps.lap(|s| &mut s.p2g);
     grid_update(k, &mut scratch.grid);
     laps.lap(|s| &mut s.grid_update);
@@ -125,38 +160,91 @@ pub fn substep_backward<T: Real>(
     grad_after: &ParticleGrads<T>,
     scratch: &mut SubstepScratch<T>,
 ) -> Result<SubstepGrads<T>, SimError> {
+    let mut grads = SubstepGrads::zeros(0);
+    substep_backward_into(k, inputs, before, None, grad_after, scratch, &mut grads)?;
+    Ok(grads)
+}
+
+impl<T: Real> SubstepGrads<T> {
+    pub fn zeros(n: usize) -> Self {
+        Self {
+            state: ParticleGrads::zeros(n),
+            mu: vec![T::zero(); n],
+            lambda: vec![T::zero(); n],
+            weights: vec![[T::zero(); 3]; n],
+            external_accel: vec![Vec3::zeros(); n],
+        }
+    }
+
+    /// Resizes every buffer to `n` particles, keeping allocations (every
+    /// entry is overwritten by [`substep_backward_into`]).
+    fn resize(&mut self, n: usize) {
+        let s = &mut self.state;
+        s.x.resize(n, Vec3::zeros());
+        s.v.resize(n, Vec3::zeros());
+        s.f.resize(n, Mat3::zeros());
+        s.c.resize(n, Mat3::zeros());
+        self.mu.resize(n, T::zero());
+        self.lambda.resize(n, T::zero());
+        self.weights.resize(n, [T::zero(); 3]);
+        self.external_accel.resize(n, Vec3::zeros());
+    }
+}
+
+/// [`substep_backward`] writing into `grads` (every entry overwritten), so
+/// a frame's backward pass reuses its buffers instead of allocating (and
+/// page-faulting in) fresh ones each substep. `cache`, when given, holds
+/// what this substep's forward pass computed, saving the recomputation
+/// of the bucketing and P2G.
+pub(crate) fn substep_backward_into<T: Real>(
+    k: &Consts<T>,
+    inputs: &SubstepInputs<'_, T>,
+    before: &Particles<T>,
+    cache: Option<&SubstepCache<T>>,
+    grad_after: &ParticleGrads<T>,
+    scratch: &mut SubstepScratch<T>,
+    grads: &mut SubstepGrads<T>,
+) -> Result<(), SimError> {
     let n = before.len();
-    // Recompute the forward grids of this substep.
-    scratch.schedule.rebuild(&before.x, k);
-    scratch.grid.clear();
+    // The forward grids of this substep: taped or recomputed.
     let impulse = ImpulseInputs {
         particles: before,
         material: inputs.material,
         pure_neo_hookean: inputs.pure_neo_hookean,
         external_accel: inputs.external_accel,
     };
-    p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
-    scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
+    let schedule = match cache {
+        Some(cache) => {
+            match &cache.pre_grid {
+                Some(grid_box) => grid_box.restore(k.res, &mut scratch.grid_pre),
+                None => scratch.grid_pre.clear(),
+            }
+            &cache.schedule
+        }
+        None => {
+            scratch.schedule.rebuild(&before.x, k);
+            scratch.grid_pre.clear();
+            p2g(k, &scratch.schedule, &impulse, &mut scratch.grid_pre);
+            &scratch.schedule
+        }
+    };
+    let pre_grid = &scratch.grid_pre;
+    scratch.grid.nodes.clone_from(&pre_grid.nodes);
     grid_update(k, &mut scratch.grid);
 
-    let mut grads = SubstepGrads {
-        state: ParticleGrads::zeros(n),
-        mu: vec![T::zero(); n],
-        lambda: vec![T::zero(); n],
-        weights: vec![[T::zero(); 3]; n],
-        external_accel: vec![Vec3::zeros(); n],
-    };
+    grads.resize(n);
     g2p_backward(
         k,
-        &scratch.schedule,
+        schedule,
         &scratch.grid,
         &before.x,
         &before.f,
         grad_after,
         &mut grads.state,
         &mut scratch.grad_u,
+        &mut scratch.gather_bar,
     );
-    grid_update_backward(k, &scratch.grid_pre, &scratch.grad_u, &mut scratch.grad_pre)?;
+    grid_update_backward(k, pre_grid, &scratch.grad_u, &mut scratch.grad_pre)?;
     let grad_pre = &scratch.grad_pre;
     let state = &mut grads.state;
     (
@@ -174,14 +262,16 @@ pub fn substep_backward<T: Real>(
         .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga))| {
             let scatter = p2g_particle_vjp(k, &impulse, p, grad_pre);
             let g = particle_impulse_vjp(k, &impulse, p, &scatter.affine, &scatter.momentum);
+            // x and F also carry the gather's adjoint (g2p_backward); v
+            // and C reach the substep's output only through P2G.
             *gx += scatter.x;
-            *gv += g.v;
+            *gv = g.v;
             *gf += g.f;
-            *gc += g.c;
+            *gc = g.c;
             *gmu = g.mu;
             *glambda = g.lambda;
             *gw = g.weights;
             *ga = g.external_accel;
         });
-    Ok(grads)
+    Ok(())
 }

@@ -363,12 +363,12 @@ impl<T: Real> World<T> {
         active: &[bool],
         window: usize,
     ) -> Result<FrameTape<T>, SimError> {
-        let mut tape = FrameTape::new(window.min(self.config.substeps_per_frame));
+        let mut tape = FrameTape::new(window.min(self.config.substeps_per_frame), self.consts.res);
         self.advance_frame(anchors_from, anchors_to, active, Some(&mut tape))?;
         Ok(tape)
     }
 
-    fn advance_frame(
+    pub(crate) fn advance_frame(
         &mut self,
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
@@ -416,12 +416,21 @@ impl<T: Real> World<T> {
                 .zip(anchors_to)
                 .map(|(a, b)| vec3([0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t)))
                 .collect();
-            if let Some(tape) = tape.as_deref_mut()
-                && s + tape.window >= steps
-            {
+            // A taped substep also keeps its post-P2G grid and bucketing
+            // for the backward pass when the tape's memory budget allows.
+            let mut taped = tape.as_deref_mut().filter(|tape| s + tape.window >= steps);
+            if let Some(tape) = taped.as_deref_mut() {
                 tape.record(&self.particles, &self.anchor_x, &self.anchor_v);
+                self.scratch.keep_pre_grid = tape.stores_grids();
             }
-            self.substep()?;
+            let result = self.substep();
+            self.scratch.keep_pre_grid = false;
+            result?;
+            if let Some(tape) = taped
+                && tape.stores_grids()
+            {
+                tape.record_cache(self.scratch.take_cache());
+            }
         }
         self.frame += 1;
         Ok(())

@@ -25,6 +25,10 @@ struct SimArgs {
     /// Output directory (created; existing files are replaced atomically).
     #[arg(long)]
     out: PathBuf,
+    /// A fitted model directory (dm-fit's output); without it the untrained
+    /// model of the bundle is rolled out.
+    #[arg(long)]
+    model_dir: Option<PathBuf>,
     #[command(flatten)]
     model: ModelOptions,
     /// Frames to roll out (default: the whole clip).
@@ -55,8 +59,13 @@ fn main() -> Result<()> {
     let args = SimArgs::parse();
     let bundle = Bundle::open(&args.bundle)
         .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
-    let model =
-        WorldModel::from_bundle(&bundle, &args.model).context("building the world model")?;
+    let model: WorldModel = match &args.model_dir {
+        Some(dir) => dm_bundle::read_json(&dir.join("model.json"))
+            .with_context(|| format!("reading the fitted model in {}", dir.display()))?,
+        None => {
+            WorldModel::from_bundle(&bundle, &args.model).context("building the world model")?
+        }
+    };
     let frames = args
         .frames
         .unwrap_or(bundle.frame_count())
@@ -141,10 +150,12 @@ fn main() -> Result<()> {
         1e3 * summary.chamfer_m.train,
         1e3 * summary.chamfer_m.test
     );
-    println!(
-        "  untrained material: E {:.3e} Pa, nu {:.2}",
-        e_median, nu_median
-    );
+    let which = if args.model_dir.is_some() {
+        "fitted"
+    } else {
+        "untrained"
+    };
+    println!("  {which} material: E {e_median:.3e} Pa, nu {nu_median:.2}");
     println!(
         "  wrote {}, {}, {}",
         rollout_path.display(),

@@ -3,13 +3,17 @@
 //! differentiable simulator on the train frames.
 //!
 //! One iteration: an open-loop rollout from frame 0 driven by the observed
-//! hands, keeping each frame's start state; the track loss of every frame;
+//! hands, keeping each frame's start state; the loss L_dyn of every frame
+//! (track + shape + length preservation, `LossWeights`);
 //! then frames are replayed backwards, each re-simulated with a tape of
 //! its last `window` substeps and differentiated, the state adjoint
 //! carried from frame to frame (truncated BPTT); the per-particle
 //! material gradients go back to the patches, and Adam takes a clipped step.
 
-use crate::loss::track::TrackMatch;
+use crate::loss::{
+    LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
+    frame_loss,
+};
 use crate::optim::{Adam, AdamConfig, ClipConfig, OptimError, ParamSet, clip_physics_gradients};
 use dm_bundle::Bundle;
 use dm_model::{ExpertChoice, ModelError, WorldModel, hand_step};
@@ -63,7 +67,7 @@ impl Default for MaterialFitConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IterationReport {
     pub iteration: usize,
-    /// Mean track loss over the frames (m²), before the step.
+    /// Mean loss L_dyn over the frames (m²), before the step.
     pub loss: f64,
     pub youngs_median_pa: f64,
     pub poisson_median: f64,
@@ -79,7 +83,40 @@ fn observed(bundle: &Bundle, t: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
     (positions, bundle.tracks.object_visibility.row(t).to_vec())
 }
 
-/// The train-split track loss of `model` over `frames` frames and its
+/// What stays fixed over a fit: frame-0 track matches and length pairs.
+struct FixedTerms {
+    track: TrackMatch,
+    length: LengthPreservation,
+    surface_count: usize,
+}
+
+impl FixedTerms {
+    fn new(model: &WorldModel, bundle: &Bundle) -> Result<Self, FitError> {
+        Ok(Self {
+            track: TrackMatch::new(&model.particles, &observed(bundle, 0).0)?,
+            length: LengthPreservation::new(&model.particles, PairSelection::default())?,
+            surface_count: model.surface_count,
+        })
+    }
+
+    /// L_dyn of frame `t` for the predicted positions, with its gradient.
+    fn frame(
+        &self,
+        bundle: &Bundle,
+        t: usize,
+        predicted: &[[f64; 3]],
+    ) -> Result<crate::loss::LossValue, FitError> {
+        let terms = LossTerms {
+            track: &self.track,
+            length: &self.length,
+            surface_count: self.surface_count,
+        };
+        let observed = ObservedFrame::from_tracks(&bundle.tracks, t)?;
+        Ok(frame_loss(&LossWeights::default(), &terms, predicted, &observed)?.total)
+    }
+}
+
+/// The train-split loss L_dyn of `model` over `frames` frames and its
 /// gradient with respect to the patch parameters.
 pub fn loss_and_gradient(
     model: &WorldModel,
@@ -97,7 +134,7 @@ pub fn loss_and_gradient(
     let steps = frames - 1;
     let mut world = model.world()?;
     let n = world.particle_count();
-    let matcher = TrackMatch::new(&model.particles, &observed(bundle, 0).0)?;
+    let fixed = FixedTerms::new(model, bundle)?;
 
     // Forward: checkpoints at frame starts, loss gradients at frame ends.
     let mut checkpoints = Vec::with_capacity(steps);
@@ -107,8 +144,7 @@ pub fn loss_and_gradient(
         checkpoints.push(world.state());
         let (from, to, grasp) = hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
-        let (points, visible) = observed(bundle, t + 1);
-        let value = matcher.track_loss(&world.positions(), &points, &visible)?;
+        let value = fixed.frame(bundle, t + 1, &world.positions())?;
         loss += value.value / steps as f64;
         frame_grads.push(
             value
@@ -227,11 +263,11 @@ pub fn fit_material(
     Ok(reports)
 }
 
-/// Forward-only mean track loss over the first `frames` frames (for the
+/// Forward-only mean loss L_dyn over the first `frames` frames (for the
 /// gain search); a diverging rollout scores infinity.
 pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<f64, FitError> {
     let frames = frames.min(bundle.frame_count());
-    let matcher = TrackMatch::new(&model.particles, &observed(bundle, 0).0)?;
+    let fixed = FixedTerms::new(model, bundle)?;
     let mut world = model.world()?;
     let mut loss = 0.0;
     for t in 0..frames.saturating_sub(1) {
@@ -239,10 +275,7 @@ pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<
         if world.step_frame(&from, &to, &grasp).is_err() {
             return Ok(f64::INFINITY);
         }
-        let (points, visible) = observed(bundle, t + 1);
-        loss += matcher
-            .track_loss(&world.positions(), &points, &visible)?
-            .value;
+        loss += fixed.frame(bundle, t + 1, &world.positions())?.value;
     }
     Ok(loss / (frames.saturating_sub(1)).max(1) as f64)
 }

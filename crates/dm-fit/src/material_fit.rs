@@ -74,15 +74,6 @@ pub struct IterationReport {
     pub seconds: f64,
 }
 
-fn observed(bundle: &Bundle, t: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
-    let points = bundle.tracks.object_points.index_axis(ndarray::Axis(0), t);
-    let positions = points
-        .outer_iter()
-        .map(|r| [r[0] as f64, r[1] as f64, r[2] as f64])
-        .collect();
-    (positions, bundle.tracks.object_visibility.row(t).to_vec())
-}
-
 /// What stays fixed over a fit: frame-0 track matches and length pairs.
 struct FixedTerms {
     track: TrackMatch,
@@ -93,7 +84,10 @@ struct FixedTerms {
 impl FixedTerms {
     fn new(model: &WorldModel, bundle: &Bundle) -> Result<Self, FitError> {
         Ok(Self {
-            track: TrackMatch::new(&model.particles, &observed(bundle, 0).0)?,
+            track: TrackMatch::new(
+                &model.particles,
+                &ObservedFrame::from_tracks(&bundle.tracks, 0)?.points,
+            )?,
             length: LengthPreservation::new(&model.particles, PairSelection::default())?,
             surface_count: model.surface_count,
         })

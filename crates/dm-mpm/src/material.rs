@@ -168,8 +168,7 @@ impl MaterialPatches {
             let mut ids = [0u32; 3];
             let mut w = [0.0f64; 3];
             // A particle sitting on a centre takes that patch alone.
-            if let Some(&(hit, d)) = near.first().filter(|n| n.1 < 1e-9) {
-                let _ = d;
+            if let Some(&(hit, _)) = near.first().filter(|n| n.1 < 1e-9) {
                 ids[0] = hit as u32;
                 w[0] = 1.0;
             } else {

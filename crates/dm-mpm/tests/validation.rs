@@ -5,7 +5,8 @@
 mod common;
 
 use common::{
-    FLOOR_GRID, block_world, bounds, floor_config, jittered_lattice, lattice, mean, rng, uniform,
+    FLOOR_GRID, block_world, bounds, floor_config, free_space_config, jittered_lattice, lattice,
+    mean, rng, uniform,
 };
 use dm_mpm::scenes::{BenchExperts, bench_block};
 use dm_mpm::{
@@ -57,12 +58,8 @@ fn dx() -> f64 {
 /// No gravity, walls out of reach, no damping: APIC transfers and internal
 /// stress forces conserve linear momentum exactly (up to round-off).
 fn momentum_drift<T: dm_mpm::Real>(empty_node_mass_ratio: f64) -> f64 {
-    let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
-    config.grid_res = FLOOR_GRID;
-    config.floor = None;
+    let mut config = free_space_config();
     config.gravity = [0.0; 3];
-    config.particle_damping = 0.0;
-    config.grid_damping = 1.0;
     config.substeps_per_frame = 20;
     config.empty_node_mass_ratio = empty_node_mass_ratio;
     let mut r = rng(21);
@@ -133,11 +130,7 @@ fn momentum_is_conserved_without_gravity_and_walls() {
 fn free_fall_follows_symplectic_euler_exactly() {
     // Uniform velocity: C = 0, F = I, no stress; each substep is
     // v += g dt; x += v dt, so z_n = z_0 - g dt² n(n+1)/2.
-    let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
-    config.grid_res = FLOOR_GRID;
-    config.floor = None;
-    config.particle_damping = 0.0;
-    config.grid_damping = 1.0;
+    let mut config = free_space_config();
     // Light nodes are kept: the default cut drags surface particles (~1e-5 m here).
     config.empty_node_mass_ratio = 0.0;
     let g = 9.8;
@@ -281,11 +274,7 @@ fn floor_friction_stops_a_sliding_block_at_the_coulomb_distance() {
 
 #[test]
 fn linear_air_drag_approaches_terminal_velocity() {
-    let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
-    config.grid_res = FLOOR_GRID;
-    config.floor = None;
-    config.particle_damping = 0.0;
-    config.grid_damping = 1.0;
+    let mut config = free_space_config();
     config.empty_node_mass_ratio = 0.0;
     let k = 20.0;
     config.effects.air_drag_linear = k;
@@ -585,10 +574,9 @@ fn a_diverging_configuration_reports_an_error() {
 /// x-extent of a free block stretched by an initial velocity field, after
 /// it settled (relative to its initial extent).
 fn extent_after_stretch(plastic_yield: Option<f64>) -> f64 {
-    let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
-    config.grid_res = FLOOR_GRID;
-    config.floor = None;
+    let mut config = free_space_config();
     config.gravity = [0.0; 3];
+    config.grid_damping = 0.999; // as before: only particle damping was set here
     config.particle_damping = 10.0;
     config.effects = Effects {
         plastic_yield,

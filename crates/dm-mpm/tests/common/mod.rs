@@ -121,6 +121,17 @@ pub fn floor_config() -> PhysicsConfig {
     c
 }
 
+/// Volumetric defaults in the unit cube with no floor and no damping, for
+/// scenes whose answer is known in closed form (free flight, drag, momentum).
+pub fn free_space_config() -> PhysicsConfig {
+    let mut c = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
+    c.grid_res = FLOOR_GRID;
+    c.floor = None;
+    c.particle_damping = 0.0;
+    c.grid_damping = 1.0;
+    c
+}
+
 /// A world of a lattice block (2 particles per cell per axis) with one
 /// uniform material.
 pub fn block_world<T: dm_mpm::Real>(

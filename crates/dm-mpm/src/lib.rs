@@ -9,6 +9,7 @@
 pub mod actuators;
 pub mod actuators_backward;
 pub mod config;
+pub mod correction;
 pub mod domain;
 pub mod experts;
 pub mod experts_backward;

@@ -178,3 +178,85 @@ fn issue3_truncated_window_records_only_the_last_substeps() {
         "zero upstream gives zero gradient"
     );
 }
+
+/// The residual's hook (issue 3 → issue 4): a frame followed by a velocity
+/// correction, differentiated with respect to the correction and the
+/// frame's start state, one particle pushed against the position clip so
+/// that the clipped branch is exercised too.
+#[test]
+fn issue3_velocity_correction_after_a_frame_matches_finite_differences() {
+    let mut w = world();
+    let n = w.particle_count();
+    let start = w.state();
+    let to = anchors_to();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let probe = ParticleGrads {
+        x: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
+        v: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
+        f: vec![Mat3::zeros(); n],
+        c: vec![Mat3::zeros(); n],
+    };
+    let mut correction: Vec<[f64; 3]> = (0..n).map(|_| rand_vec(&mut rng, 0.05).into()).collect();
+    // Far enough down to leave the domain: the clip must hold it.
+    correction[0][2] = -20.0;
+    let direction: Vec<Vec3<f64>> = (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect();
+
+    let tape = w
+        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
+        .expect("taped frame");
+    let correction_tape = w
+        .apply_velocity_correction(&correction)
+        .expect("correction");
+    assert!(
+        correction_tape.clipped[0][2],
+        "particle 0 must hit the clip"
+    );
+    let mut grads = probe.clone();
+    let grad_dv = correction_tape.backward(&mut grads);
+    let frame_grads = w.backward_frame(&tape, &grads).expect("backward");
+
+    let mut run = |state: &Particles<f64>, dv: &[[f64; 3]]| {
+        w.set_state(state).expect("state");
+        w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+        w.apply_velocity_correction(dv).expect("correction");
+        loss(&w.state(), &probe)
+    };
+    let analytic_dv: f64 = grad_dv.iter().zip(&direction).map(|(g, d)| g.dot(d)).sum();
+    check("dv", analytic_dv, &mut |h| {
+        let dv: Vec<[f64; 3]> = correction
+            .iter()
+            .zip(&direction)
+            .map(|(c, d)| [0, 1, 2].map(|a| c[a] + h * d[a]))
+            .collect();
+        run(&start, &dv)
+    });
+    let analytic_x: f64 = frame_grads
+        .state
+        .x
+        .iter()
+        .zip(&direction)
+        .map(|(g, d)| g.dot(d))
+        .sum();
+    check("x through frame and correction", analytic_x, &mut |h| {
+        let mut s = start.clone();
+        s.x.iter_mut()
+            .zip(&direction)
+            .for_each(|(x, d)| *x += d * h);
+        run(&s, &correction)
+    });
+}
+
+#[test]
+fn issue3_non_finite_velocity_correction_is_refused() {
+    let mut w = world();
+    let mut dv = vec![[0.0; 3]; w.particle_count()];
+    dv[3][1] = f64::NAN;
+    let err = w
+        .apply_velocity_correction(&dv)
+        .expect_err("NaN must be refused");
+    assert!(err.to_string().contains("particle 3"), "{err}");
+    assert!(
+        w.apply_velocity_correction(&dv[1..]).is_err(),
+        "wrong length"
+    );
+}

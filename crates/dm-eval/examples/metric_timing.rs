@@ -41,6 +41,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let lpips_ms = time(&mut || {
         value = network.distance(&a, &b).unwrap_or(f64::NAN);
     });
-    println!("{w}x{h}: PSNR {psnr_ms:.1} ms, SSIM {ssim_ms:.1} ms, LPIPS {lpips_ms:.1} ms per frame (threads {threads}, LPIPS {value:.4})");
+    println!(
+        "{w}x{h}: PSNR {psnr_ms:.1} ms, SSIM {ssim_ms:.1} ms, LPIPS {lpips_ms:.1} ms per frame (threads {threads}, LPIPS {value:.4})"
+    );
     Ok(())
 }

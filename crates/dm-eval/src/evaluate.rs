@@ -13,21 +13,12 @@ use image::{GrayImage, RgbImage};
 use std::time::Instant;
 
 /// What to evaluate.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct EvalOptions {
     /// Index of the camera of the image metrics (the protocol's camera 0).
     pub camera: usize,
     /// Frames to roll out and score (`None`: the whole clip).
     pub frames: Option<usize>,
-}
-
-impl Default for EvalOptions {
-    fn default() -> Self {
-        Self {
-            camera: 0,
-            frames: None,
-        }
-    }
 }
 
 /// The model's prediction as the camera sees it: the particles as splats of

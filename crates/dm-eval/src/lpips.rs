@@ -59,7 +59,12 @@ impl LpipsPaths {
     pub fn default_cache_dir() -> PathBuf {
         match std::env::var_os(CACHE_DIR_ENV) {
             Some(dir) if !dir.is_empty() => PathBuf::from(dir),
-            _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.cache/lpips"),
+            // crates/dm-eval → the workspace root.
+            _ => Path::new(env!("CARGO_MANIFEST_DIR"))
+                .ancestors()
+                .nth(2)
+                .unwrap_or(Path::new("."))
+                .join(".cache/lpips"),
         }
     }
 

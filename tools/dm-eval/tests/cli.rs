@@ -61,7 +61,10 @@ fn issue5_eval_writes_metrics_table_and_plots() {
         }
         let iou = metrics[split]["iou"].as_f64().unwrap_or(f64::NAN);
         let ssim = metrics[split]["ssim"].as_f64().unwrap_or(f64::NAN);
-        assert!((0.0..=1.0).contains(&iou) && iou > 0.05, "{split} IoU {iou}");
+        assert!(
+            (0.0..=1.0).contains(&iou) && iou > 0.05,
+            "{split} IoU {iou}"
+        );
         assert!((-1.0..=1.0).contains(&ssim), "{split} SSIM {ssim}");
         let chamfer = metrics[split]["chamfer"].as_f64().unwrap_or(f64::NAN);
         assert!(chamfer < 0.2, "{split} Chamfer {chamfer} m");
@@ -79,7 +82,10 @@ fn issue5_eval_writes_metrics_table_and_plots() {
         );
     }
     let table = std::fs::read_to_string(out.join("metrics.md")).expect("metrics.md");
-    assert!(table.contains("| test |") && table.contains("LPIPS"), "{table}");
+    assert!(
+        table.contains("| test |") && table.contains("LPIPS"),
+        "{table}"
+    );
 }
 
 #[test]

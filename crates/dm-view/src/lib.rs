@@ -12,6 +12,7 @@
 //! - Colours are plain `[0, 1]` display values; no gamma handling is applied.
 
 mod camera;
+pub mod chart;
 mod error;
 mod frame;
 mod imaging;

@@ -107,7 +107,7 @@ fn main() -> Result<()> {
     let clip = |r: [usize; 2]| [r[0].min(frames), r[1].min(frames)];
     let last = frames - 1;
     let shown: Vec<usize> = [0, last / 3, (2 * last) / 3, last].into_iter().collect();
-    let radius = (0.9 * model.particle_volume.cbrt()) as f32;
+    let radius = model.splat_radius();
     let strip = comparison_strip(&bundle, 0, &rollout, &model.colors, radius, &shown)?;
     let preview_path = args.out.join("preview.png");
     write_file_atomic(&preview_path, |temp| {

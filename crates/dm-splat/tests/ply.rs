@@ -128,6 +128,15 @@ fn reads_files_with_extra_properties_and_rejects_bad_ones() {
         err.to_string().contains("missing vertex property opacity"),
         "{err}"
     );
+    // A header claiming far more vertices than the file holds.
+    let huge = dir.path().join("huge.ply");
+    let text =
+        String::from_utf8_lossy(&bytes[..header_end]).replace("vertex 2", "vertex 1000000000000");
+    let mut b3 = text.into_bytes();
+    b3.extend(&bytes[header_end..]);
+    std::fs::write(&huge, &b3).expect("write");
+    let err = read_ply::<f32>(&huge).expect_err("huge count");
+    assert!(err.to_string().contains("shorter"), "{err}");
     // ASCII format.
     let ascii = dir.path().join("ascii.ply");
     std::fs::write(

@@ -53,6 +53,19 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
+    /// Gaussian-splat render (forward, then backward of a squared-error
+    /// loss) of seeded random Gaussians in a 0.3 m ball seen from 0.7 m.
+    Render {
+        #[arg(long, default_value_t = 50_000)]
+        gaussians: usize,
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        #[arg(long, default_value_t = 480)]
+        height: u32,
+        /// Timed repetitions after one warm-up (medians are printed).
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+    },
 }
 
 fn main() -> Result<()> {
@@ -100,6 +113,12 @@ fn main() -> Result<()> {
             grid,
             repeats,
         } => grad_window(particles, window, grid, repeats)?,
+        Command::Render {
+            gaussians,
+            width,
+            height,
+            repeats,
+        } => render_bench(gaussians, width, height, repeats)?,
     }
     Ok(())
 }
@@ -144,6 +163,98 @@ fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize) -> 
          (backward/forward {:.2}); sum dL/dE = {checksum:.4e}; {} threads",
         t - f,
         (t - f) / f,
+        rayon::current_num_threads()
+    );
+    Ok(())
+}
+
+fn render_bench(count: usize, width: u32, height: u32, repeats: usize) -> Result<()> {
+    use dm_splat::gaussians::logit;
+    use dm_splat::{Gaussians, RenderSettings, render, render_backward};
+    use nalgebra::{Point3, Vector3};
+    use rand::{RngExt, SeedableRng};
+
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let mut uniform = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
+    let mut gaussians = Gaussians::<f32>::default();
+    // An object-sized cloud: uniform in a 0.15 m-radius ball, σ 2-10 mm
+    // (roughly what a fit of a plush toy at this density produces).
+    while gaussians.len() < count {
+        let p = Vector3::new(uniform(-1.0, 1.0), uniform(-1.0, 1.0), uniform(-1.0, 1.0));
+        if p.norm() > 1.0 {
+            continue;
+        }
+        let q = [
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+            uniform(-1.0, 1.0),
+        ];
+        let n = q.iter().map(|c| c * c).sum::<f64>().sqrt().max(1e-6);
+        gaussians.push(
+            (p * 0.15).cast::<f32>(),
+            Vector3::new(
+                uniform(0.002f64.ln(), 0.01f64.ln()),
+                uniform(0.002f64.ln(), 0.01f64.ln()),
+                uniform(0.002f64.ln(), 0.01f64.ln()),
+            )
+            .cast::<f32>(),
+            q.map(|c| (c / n) as f32),
+            logit(uniform(0.1, 0.99)) as f32,
+            Vector3::new(uniform(0.0, 1.0), uniform(0.0, 1.0), uniform(0.0, 1.0)).cast::<f32>(),
+        );
+    }
+    let camera = dm_view::Camera::look_at(
+        Point3::new(0.5, -0.45, 0.2),
+        Point3::origin(),
+        Vector3::z(),
+        width,
+        height,
+        50.0,
+    );
+    let settings = RenderSettings {
+        background: [1.0, 1.0, 1.0],
+        ..RenderSettings::default()
+    };
+    let target = vec![[0.5f32; 3]; width as usize * height as usize];
+    let mut forward_ms = Vec::new();
+    let mut backward_ms = Vec::new();
+    let mut summary = String::new();
+    for rep in 0..=repeats.max(1) {
+        let start = Instant::now();
+        let out = render(&gaussians, &camera, &settings).context("rendering")?;
+        let forward = start.elapsed().as_secs_f64() * 1e3;
+        let grad_image: Vec<[f32; 3]> = out
+            .image()
+            .iter()
+            .zip(&target)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        let start = Instant::now();
+        let grads = render_backward(&gaussians, &camera, &settings, &out, &grad_image)
+            .context("back-propagating")?;
+        let backward = start.elapsed().as_secs_f64() * 1e3;
+        if rep > 0 {
+            forward_ms.push(forward);
+            backward_ms.push(backward);
+        }
+        let coverage =
+            out.alpha().iter().map(|a| f64::from(*a)).sum::<f64>() / f64::from(width * height);
+        summary = format!(
+            "{} visible, {} tile intersections, coverage {coverage:.3}, |dL/dmean| sum {:.4e}",
+            out.projected.visible_count(),
+            out.bins.intersections(),
+            grads.means.iter().map(|g| f64::from(g.norm())).sum::<f64>()
+        );
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    println!("render_ms {:.2}", median(&mut forward_ms));
+    println!("render_backward_ms {:.2}", median(&mut backward_ms));
+    eprintln!(
+        "# {count} Gaussians, {width}x{height}, f32, {} threads: {summary}",
         rayon::current_num_threads()
     );
     Ok(())

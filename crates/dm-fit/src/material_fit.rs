@@ -14,8 +14,13 @@ use crate::loss::{
     LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
     frame_loss,
 };
-use crate::optim::{Adam, AdamConfig, ClipConfig, OptimError, ParamSet, clip_physics_gradients};
+use crate::optim::{
+    Adam, AdamConfig, ClipConfig, OptimError, ParamSet, clip_global_norm, clip_physics_gradients,
+};
 use dm_bundle::Bundle;
+use dm_model::residual::{
+    FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
+};
 use dm_model::{ExpertChoice, ModelError, WorldModel, hand_step};
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
@@ -50,6 +55,19 @@ pub struct MaterialFitConfig {
     pub window: usize,
     /// Frames used (default: the bundle's train split).
     pub frames: Option<usize>,
+    /// Adam learning rate of the residual network (method.md §5: 5e-3).
+    pub residual_learning_rate: f64,
+}
+
+impl MaterialFitConfig {
+    /// Adam with the material and residual learning rates.
+    pub fn adam(&self) -> Result<Adam, OptimError> {
+        let mut config = AdamConfig::with_learning_rate(self.learning_rate);
+        config
+            .group_learning_rates
+            .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
+        Adam::new(config)
+    }
 }
 
 impl Default for MaterialFitConfig {
@@ -59,6 +77,7 @@ impl Default for MaterialFitConfig {
             learning_rate: 0.1,
             window: 20,
             frames: None,
+            residual_learning_rate: 5e-3,
         }
     }
 }
@@ -110,14 +129,32 @@ impl FixedTerms {
     }
 }
 
-/// The train-split loss L_dyn of `model` over `frames` frames and its
-/// gradient with respect to the patch parameters.
+/// Parameter group of the residual network's weights in the optimiser.
+pub const RESIDUAL_GROUP: &str = "residual";
+/// Gradient-norm clip of the residual network (method.md §5).
+pub const RESIDUAL_CLIP_NORM: f64 = 5.0;
+
+/// Weight of the residual's regulariser Σ_p |Δv_p|² / n (method.md §5).
+pub const RESIDUAL_REGULARISER: f64 = 1e-3;
+
+/// Gradients of the train loss.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LossGradients {
+    /// Per-patch material parameters.
+    pub patches: PatchParams,
+    /// Residual network weights (when the model has a residual).
+    pub residual: Option<Vec<f64>>,
+}
+
+/// The train-split loss L_dyn (+ the residual's regulariser) of `model`
+/// over `frames` frames and its gradient with respect to the patch
+/// parameters and the residual's weights.
 pub fn loss_and_gradient(
     model: &WorldModel,
     bundle: &Bundle,
     frames: usize,
     window: usize,
-) -> Result<(f64, PatchParams), FitError> {
+) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
     if frames < 2 {
         return Err(FitError::InvalidOption {
@@ -127,17 +164,30 @@ pub fn loss_and_gradient(
     }
     let steps = frames - 1;
     let mut world = model.world()?;
+    let network = model.residual_network()?;
     let n = world.particle_count();
     let fixed = FixedTerms::new(model, bundle)?;
+    // Σ_p |Δv_p|² / n per frame, averaged over frames like L_dyn.
+    let regulariser = RESIDUAL_REGULARISER / (n * steps) as f64;
 
     // Forward: checkpoints at frame starts, loss gradients at frame ends.
     let mut checkpoints = Vec::with_capacity(steps);
+    let mut starts: Vec<FrameStart> = Vec::with_capacity(steps);
+    let mut corrections = Vec::with_capacity(steps);
     let mut frame_grads: Vec<Vec<[f64; 3]>> = Vec::with_capacity(steps);
     let mut loss = 0.0;
     for t in 0..steps {
         checkpoints.push(world.state());
+        if network.is_some() {
+            starts.push(frame_start(&world));
+        }
         let (from, to, grasp) = hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
+        if let Some(network) = &network {
+            let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
+            loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
+            corrections.push(dv);
+        }
         let value = fixed.frame(bundle, t + 1, &world.positions())?;
         loss += value.value / steps as f64;
         frame_grads.push(
@@ -154,6 +204,7 @@ pub fn loss_and_gradient(
     let mut grad_mu = vec![0.0f32; n];
     let mut grad_lambda = vec![0.0f32; n];
     let mut grad_weights = vec![[0.0f32; 3]; n];
+    let mut grad_residual = network.as_ref().map(|net| vec![0.0; net.parameter_count()]);
     for t in (0..steps).rev() {
         for (c, g) in carried.x.iter_mut().zip(&frame_grads[t]) {
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
@@ -161,6 +212,24 @@ pub fn loss_and_gradient(
         world.set_state(&checkpoints[t])?;
         let (from, to, grasp) = hand_step(bundle, t);
         let tape = world.step_frame_taped(&from, &to, &grasp, window)?;
+        let mut x_start_grad = None;
+        if let (Some(network), Some(grad_residual)) = (&network, grad_residual.as_mut()) {
+            let inputs = frame_inputs(&world, &starts, t);
+            let correction = world.apply_velocity_correction(&corrections[t])?;
+            let grads = residual_backward(
+                network,
+                &inputs,
+                &corrections[t],
+                &correction,
+                &mut carried,
+                regulariser,
+            )?;
+            grad_residual
+                .iter_mut()
+                .zip(&grads.parameters)
+                .for_each(|(g, d)| *g += d);
+            x_start_grad = Some(grads.x_start);
+        }
         let g = world.backward_frame(&tape, &carried)?;
         for p in 0..n {
             grad_mu[p] += g.mu[p];
@@ -170,6 +239,11 @@ pub fn loss_and_gradient(
             }
         }
         carried = g.state;
+        if let Some(x_start_grad) = x_start_grad {
+            for (c, g) in carried.x.iter_mut().zip(&x_start_grad) {
+                *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
+            }
+        }
     }
     let mut grads = model.patches.particle_material_vjp(
         &model.params,
@@ -182,7 +256,13 @@ pub fn loss_and_gradient(
         // A single expert has no mixture to learn.
         grads.logits.iter_mut().for_each(|l| *l = [0.0; 3]);
     }
-    Ok((loss, grads))
+    Ok((
+        loss,
+        LossGradients {
+            patches: grads,
+            residual: grad_residual,
+        },
+    ))
 }
 
 pub(crate) fn to_param_set(p: &PatchParams) -> Result<ParamSet, OptimError> {
@@ -225,12 +305,25 @@ pub fn material_step(
     let start = std::time::Instant::now();
     let (loss, grads) =
         loss_and_gradient(model, bundle, fit_frames(bundle, config), config.window)?;
-    let mut grads = to_param_set(&grads)?;
-    clip_physics_gradients(&mut grads, &ClipConfig::default())?;
+    let mut all_grads = to_param_set(&grads.patches)?;
+    clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
     let mut params = to_param_set(&model.params)?;
-    adam.step(&mut params, &grads)?;
+    if let (Some(residual_grads), Some(state)) = (grads.residual, model.residual.as_ref()) {
+        let mut residual_grads = ParamSet::new().with_group(RESIDUAL_GROUP, residual_grads)?;
+        clip_global_norm(&mut residual_grads, RESIDUAL_CLIP_NORM)?;
+        let clipped = residual_grads
+            .get(RESIDUAL_GROUP)
+            .unwrap_or_default()
+            .to_vec();
+        all_grads = all_grads.with_group(RESIDUAL_GROUP, clipped)?;
+        params = params.with_group(RESIDUAL_GROUP, state.parameters.clone())?;
+    }
+    adam.step(&mut params, &all_grads)?;
     from_param_set(&params, &mut model.params);
+    if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
+        state.parameters.copy_from_slice(values);
+    }
     Ok(IterationReport {
         iteration,
         loss,
@@ -247,7 +340,7 @@ pub fn fit_material(
     config: &MaterialFitConfig,
     on_iteration: &mut dyn FnMut(&IterationReport),
 ) -> Result<Vec<IterationReport>, FitError> {
-    let mut adam = Adam::new(AdamConfig::with_learning_rate(config.learning_rate))?;
+    let mut adam = config.adam()?;
     let mut reports = Vec::with_capacity(config.iterations);
     for iteration in 0..config.iterations {
         let report = material_step(model, bundle, config, &mut adam, iteration)?;
@@ -263,11 +356,17 @@ pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<
     let frames = frames.min(bundle.frame_count());
     let fixed = FixedTerms::new(model, bundle)?;
     let mut world = model.world()?;
+    let network = model.residual_network()?;
+    let mut starts: Vec<FrameStart> = Vec::new();
     let mut loss = 0.0;
     for t in 0..frames.saturating_sub(1) {
+        starts.push(frame_start(&world));
         let (from, to, grasp) = hand_step(bundle, t);
         if world.step_frame(&from, &to, &grasp).is_err() {
             return Ok(f64::INFINITY);
+        }
+        if let Some(network) = &network {
+            apply_residual(&mut world, network, &starts, t)?;
         }
         loss += fixed.frame(bundle, t + 1, &world.positions())?.value;
     }

@@ -6,7 +6,7 @@
 use crate::material_fit::{
     FitError, IterationReport, MaterialFitConfig, fit_frames, material_step, train_loss,
 };
-use crate::optim::{Adam, AdamConfig, Bounds, Cmaes, CmaesOptions};
+use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
 use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use serde::{Deserialize, Serialize};
@@ -26,6 +26,10 @@ pub struct FitOptions {
     /// Adam learning rate on the unbounded material parameters.
     #[arg(long, default_value_t = 0.1)]
     pub lr: f64,
+    /// Adam learning rate of the residual network (method.md §5).
+    #[arg(long, default_value_t = 5e-3)]
+    #[serde(default = "default_residual_lr")]
+    pub residual_lr: f64,
     /// Substeps differentiated per frame (truncated BPTT).
     #[arg(long, default_value_t = 20)]
     pub window: usize,
@@ -35,6 +39,10 @@ pub struct FitOptions {
     /// Seed of the gain search.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+}
+
+fn default_residual_lr() -> f64 {
+    5e-3
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -75,6 +83,8 @@ pub struct FitReport {
     pub material: serde_json::Value,
     pub dca: serde_json::Value,
     pub loss: serde_json::Value,
+    /// `kind` (pgnd | mlp | none) and the network's weight count.
+    pub residual: serde_json::Value,
     pub seconds: f64,
     pub options: FitOptions,
     pub frames: usize,
@@ -89,6 +99,7 @@ fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig
         learning_rate: options.lr,
         window: options.window,
         frames: None,
+        residual_learning_rate: options.residual_lr,
     }
 }
 
@@ -192,7 +203,7 @@ pub fn run_fit(
             stage: Stage::Material1,
             iteration: 0,
             model: WorldModel::from_bundle(bundle, &options.model)?,
-            adam: Adam::new(AdamConfig::with_learning_rate(options.lr))?,
+            adam: material_config(options, 0).adam()?,
             history: Vec::new(),
             gain_search: Vec::new(),
             seconds: 0.0,
@@ -245,7 +256,7 @@ pub fn run_fit(
                     progress("selecting actuator gains (CMA-ES)");
                     state.gain_search = select_gains(&mut state.model, bundle, options)?;
                 }
-                state.adam = Adam::new(AdamConfig::with_learning_rate(options.lr))?;
+                state.adam = material_config(options, 0).adam()?;
                 state.stage = Stage::Material2;
             }
             Stage::Done => break,
@@ -263,6 +274,10 @@ pub fn run_fit(
             "initial": state.history.first().map(|r| r.loss),
             "final": final_loss,
             "history": state.history,
+        }),
+        residual: serde_json::json!({
+            "kind": options.model.residual,
+            "parameters": state.model.residual.as_ref().map_or(0, |r| r.parameters.len()),
         }),
         seconds: state.seconds,
         options: options.clone(),
@@ -299,5 +314,11 @@ fn write_model(model: &WorldModel, out: &Path) -> Result<(), FitError> {
     write_file_atomic(&out.join("expert_weights.npy"), |temp| {
         write_npy_file(temp, &weights).map_err(|e| std::io::Error::other(e.to_string()))
     })?;
+    // The weights also live in model.json; safetensors is for other tools.
+    if let Some(network) = model.residual_network()? {
+        network
+            .save(&out.join("residual.safetensors"))
+            .map_err(dm_model::ModelError::from)?;
+    }
     Ok(())
 }

@@ -5,6 +5,10 @@
 
 pub mod metrics;
 pub mod preview;
+pub mod residual;
+
+pub use dm_residual::ResidualKind;
+pub use residual::ResidualState;
 
 use dm_bundle::{Bundle, Category};
 use dm_mpm::domain::cube_domain_containing;
@@ -21,6 +25,8 @@ pub enum ModelError {
     Bundle(#[from] dm_bundle::BundleError),
     #[error(transparent)]
     Simulation(#[from] SimError),
+    #[error(transparent)]
+    Residual(#[from] dm_residual::ResidualError),
     #[error("invalid model option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }
@@ -60,6 +66,15 @@ pub struct ModelOptions {
     /// Material patches (farthest-point samples of the first frame).
     #[arg(long, default_value_t = 64)]
     pub patches: usize,
+    /// Neural residual after each frame (method.md §5): the particle-grid
+    /// network, a per-particle MLP (ablation) or none.
+    #[arg(long, value_enum, default_value_t = ResidualKind::Pgnd)]
+    #[serde(default = "default_residual")]
+    pub residual: ResidualKind,
+}
+
+fn default_residual() -> ResidualKind {
+    ResidualKind::None
 }
 
 impl Default for ModelOptions {
@@ -69,6 +84,7 @@ impl Default for ModelOptions {
             actuators: ActuatorChoice::Dca,
             grid: 32,
             patches: 64,
+            residual: ResidualKind::Pgnd,
         }
     }
 }
@@ -87,6 +103,10 @@ pub struct WorldModel {
     pub colors: Vec<[f32; 3]>,
     pub surface_count: usize,
     pub particle_volume: f64,
+    /// The neural residual with its weights (absent: physics only; models
+    /// saved before the residual existed have none).
+    #[serde(default)]
+    pub residual: Option<ResidualState>,
 }
 
 /// Initial material of a category before any fitting: in the soft part of
@@ -205,8 +225,15 @@ impl WorldModel {
             },
             ..ActuatorConfig::default()
         };
+        let residual = ResidualState::fresh(
+            options.residual,
+            &physics,
+            dm_residual::NetworkSize::default(),
+            0,
+        )?;
         Ok(Self {
             options: options.clone(),
+            residual,
             physics,
             bounds,
             patches,
@@ -247,6 +274,14 @@ impl WorldModel {
         (0.9 * self.particle_volume.cbrt()) as f32
     }
 
+    /// The residual network (f32) of this model, if it has one.
+    pub fn residual_network(&self) -> Result<Option<dm_residual::Residual>, ModelError> {
+        self.residual
+            .as_ref()
+            .map(|r| r.network(candle_core::DType::F32))
+            .transpose()
+    }
+
     /// A fresh MPM world of this model at the first frame.
     pub fn world(&self) -> Result<World<f32>, ModelError> {
         Ok(World::new(
@@ -269,11 +304,17 @@ impl WorldModel {
     ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         let frames = frames.min(bundle.frame_count());
         let mut world = self.world()?;
+        let network = self.residual_network()?;
         let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
         let mut out = vec![as_f32(world.positions())];
+        let mut starts = Vec::new();
         for t in 0..frames.saturating_sub(1) {
+            starts.push(residual::frame_start(&world));
             let (from, to, grasp) = hand_step(bundle, t);
             world.step_frame(&from, &to, &grasp)?;
+            if let Some(network) = &network {
+                residual::apply_residual(&mut world, network, &starts, t)?;
+            }
             out.push(as_f32(world.positions()));
             on_frame(t + 1);
         }

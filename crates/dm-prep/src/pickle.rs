@@ -662,7 +662,7 @@ impl Machine<'_> {
     }
 
     fn pairs(&self, items: Vec<ObjId>) -> Result<Vec<(ObjId, ObjId)>, PickleError> {
-        if items.len() % 2 != 0 {
+        if !items.len().is_multiple_of(2) {
             return Err(self.error("odd number of items for a dict"));
         }
         Ok(items.chunks_exact(2).map(|kv| (kv[0], kv[1])).collect())

@@ -6,7 +6,10 @@ roll out the untrained and the fitted model, and tabulate truth vs fitted
 material and the held-out errors. Usage (from the repository root, after
 `cargo build --release --workspace --bins`):
 
-    python3 scripts/recovery_table.py OUT_DIR [--frames 48] [--seed 5]
+    python3 scripts/recovery_table.py OUT_DIR [--action stretch] [--frames 72] [--seed 5]
+
+The fit is physics only (`--residual none`): this table is about what the
+material and actuator stages recover.
 """
 import argparse
 import json
@@ -24,9 +27,10 @@ def run(*args):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("out", type=pathlib.Path)
-    ap.add_argument("--frames", type=int, default=48)
+    ap.add_argument("--frames", type=int, default=72)
+    ap.add_argument("--action", default="stretch", choices=["lift", "push", "stretch", "twist"])
     ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--fit", default="--iters 10 --stage2-iters 4 --gain-evals 12")
+    ap.add_argument("--fit", default="--residual none")
     ap.add_argument("--reuse", action="store_true", help="only tabulate existing outputs")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
@@ -34,10 +38,10 @@ def main():
     for preset in ["rope", "cloth", "toy"]:
         scene, model = a.out / preset, a.out / f"{preset}_model"
         if not a.reuse:
-            run(BIN / "dm-synth", "--preset", preset, "--seed", a.seed, "--action", "lift",
+            run(BIN / "dm-synth", "--preset", preset, "--seed", a.seed, "--action", a.action,
                 "--homogeneous", "--frames", a.frames, "--out", scene)
             run(BIN / "dm-fit", scene, "--out", model, *a.fit.split())
-            run(BIN / "dm-sim", scene, "--out", a.out / f"{preset}_u")
+            run(BIN / "dm-sim", scene, "--residual", "none", "--out", a.out / f"{preset}_u")
             run(BIN / "dm-sim", scene, "--model-dir", model, "--out", a.out / f"{preset}_f")
         truth = json.loads((a.out / f"{preset}.truth.json").read_text())
         report = json.loads((model / "fit_report.json").read_text())

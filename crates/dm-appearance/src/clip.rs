@@ -1,0 +1,223 @@
+//! A rendered clip: the Gaussians following a rollout (or at rest), seen
+//! by the chosen cameras, written as PNG frames and an MP4.
+//!
+//! The MP4 is encoded by the `ffmpeg` program (H.264, yuv420p, the Debian
+//! package installed by `make setup`) rather than OpenCV's VideoWriter:
+//! see docs/ARCHITECTURE.md ("Appearance") for why.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use dm_bundle::write_file_atomic;
+use dm_splat::{RenderSettings, render};
+use dm_view::Camera;
+
+use crate::AppearanceError;
+use crate::follow::SplatFollower;
+use crate::quality::to_rgb8;
+
+/// Name of frame `t`'s PNG in the output directory.
+pub fn frame_file_name(t: usize) -> String {
+    format!("frame_{t:05}.png")
+}
+
+pub const VIDEO_FILE: &str = "render.mp4";
+
+/// Renders frames `range` (clip frame indices) and writes one PNG each
+/// into `out_dir`. `positions[t]` are the particles of clip frame `t`
+/// (frame 0 first; `None`: the Gaussians stay at rest), `cameras[k]` the
+/// camera of the k-th rendered frame. Returns the written paths.
+pub fn render_frames(
+    follower: &mut SplatFollower,
+    positions: Option<&[Vec<[f32; 3]>]>,
+    range: std::ops::Range<usize>,
+    cameras: &[Camera],
+    background: [f64; 3],
+    out_dir: &Path,
+    progress: &mut dyn FnMut(usize),
+) -> Result<Vec<PathBuf>, AppearanceError> {
+    let settings = RenderSettings {
+        background,
+        ..RenderSettings::default()
+    };
+    let mut written = Vec::with_capacity(range.len());
+    let mut at = 0usize;
+    for (k, t) in range.clone().enumerate() {
+        if let Some(positions) = positions {
+            // Skinning is incremental: walk every frame up to t.
+            while at < t {
+                at += 1;
+                follower.advance(&positions[at])?;
+            }
+        }
+        let camera = &cameras[k.min(cameras.len().saturating_sub(1))];
+        let out = render(follower.gaussians(), camera, &settings)?;
+        let image = to_rgb8(out.image(), camera.width, camera.height);
+        let path = out_dir.join(frame_file_name(t));
+        write_file_atomic(&path, |tmp| {
+            image
+                .save_with_format(tmp, image::ImageFormat::Png)
+                .map_err(std::io::Error::other)
+        })?;
+        written.push(path);
+        progress(k + 1);
+    }
+    Ok(written)
+}
+
+/// Encodes `out_dir/frame_%05d.png` from frame `first` on into
+/// `out_dir/render.mp4` with ffmpeg (written under a temporary name, then
+/// renamed).
+pub fn encode_mp4(out_dir: &Path, first: usize, fps: f64) -> Result<PathBuf, AppearanceError> {
+    let path = out_dir.join(VIDEO_FILE);
+    let tmp = out_dir.join(format!(".{VIDEO_FILE}.{}.tmp.mp4", std::process::id()));
+    let video_err = |problem: String| AppearanceError::Video {
+        path: path.clone(),
+        problem,
+    };
+    let output = Command::new("ffmpeg")
+        .args(["-y", "-loglevel", "error", "-framerate"])
+        .arg(format!("{fps}"))
+        .arg("-start_number")
+        .arg(first.to_string())
+        .arg("-i")
+        .arg(out_dir.join("frame_%05d.png"))
+        // yuv420p needs even sizes; players expect yuv420p.
+        .args([
+            "-vf",
+            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+        ])
+        .arg(&tmp)
+        .output()
+        .map_err(|e| {
+            video_err(format!(
+                "could not run ffmpeg ({e}); install it with `make setup` (Debian package ffmpeg) or pass --no-video"
+            ))
+        })?;
+    if !output.status.success() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(video_err(format!(
+            "ffmpeg failed ({}): {}",
+            output.status,
+            String::from_utf8_lossy(&output.stderr).trim()
+        )));
+    }
+    std::fs::rename(&tmp, &path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        video_err(format!("renaming the encoded video into place: {e}"))
+    })?;
+    Ok(path)
+}
+
+/// What [`render_clip`] renders.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClipRequest {
+    pub view: crate::ViewChoice,
+    /// Clip frames `[start, end)`; `None`: the whole clip with a bundle,
+    /// else frame 0 alone (orbit: [`STATIC_ORBIT_FRAMES`] frames at rest).
+    pub frames: Option<(usize, usize)>,
+    pub background: [f64; 3],
+    /// Encode `render.mp4` (needs ffmpeg).
+    pub video: bool,
+    /// Frames per second of the video (`None`: the scene's).
+    pub fps: Option<f64>,
+}
+
+/// Frames of an orbit around the object at rest (no bundle to roll out).
+pub const STATIC_ORBIT_FRAMES: usize = 60;
+
+/// What [`render_clip`] wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClipSummary {
+    pub frames: Vec<PathBuf>,
+    pub video: Option<PathBuf>,
+    /// Whether the Gaussians followed a rollout driven by the bundle's
+    /// hand track (else they stayed in their frame-0 pose).
+    pub rolled_out: bool,
+}
+
+/// Parses `A:B` (clip frames `A..B`, B exclusive).
+pub fn parse_frame_range(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("`{s}` is not a frame range: use A:B with A < B (B exclusive), e.g. 0:24");
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (a, b): (usize, usize) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if a >= b {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// Renders the fitted splats of the model in `model_dir` as the request
+/// asks: with a bundle the model is rolled out from frame 0 driven by its
+/// hand track and the Gaussians follow by LBS; without one they stay at
+/// rest. Writes PNG frames (and the MP4) into `out_dir`, which must exist.
+pub fn render_clip(
+    model_dir: &Path,
+    model: &dm_model::WorldModel,
+    bundle: Option<&dm_bundle::Bundle>,
+    request: &ClipRequest,
+    out_dir: &Path,
+    progress: &mut dyn FnMut(&'static str, usize, usize),
+) -> Result<ClipSummary, AppearanceError> {
+    let (gaussians, record) = crate::store::load_appearance(model_dir, model)?;
+    let camera_specs = match bundle {
+        Some(b) => b.meta.cameras.clone(),
+        None => record.cameras.clone(),
+    };
+    let cameras: Vec<Camera> = camera_specs
+        .iter()
+        .enumerate()
+        .map(|(i, spec)| crate::views::camera_from_spec(spec, i))
+        .collect::<Result<_, _>>()?;
+    let up = bundle.map_or(record.up, |b| b.meta.up_axis.unit_vector());
+    let clip_frames = bundle.map(dm_bundle::Bundle::frame_count);
+    let (start, end) = match (request.frames, clip_frames) {
+        (Some((a, b)), Some(t)) if b > t => {
+            return Err(AppearanceError::InvalidOption {
+                option: "--frames".into(),
+                problem: format!("{a}:{b} ends after the clip's {t} frames"),
+            });
+        }
+        (Some(range), _) => range,
+        (None, Some(t)) => (0, t),
+        (None, None) if request.view == crate::ViewChoice::Orbit => (0, STATIC_ORBIT_FRAMES),
+        (None, None) => (0, 1),
+    };
+    let centre = crate::views::particle_centre(&model.particles);
+    let view_cameras = crate::views::cameras_for(request.view, &cameras, &centre, up, end - start)?;
+    let positions = match bundle {
+        Some(b) => Some(model.rollout(b, end, &mut |t| progress("rollout", t, end - 1))?),
+        None => None,
+    };
+    let mut follower = SplatFollower::new(gaussians, &model.particles)?;
+    let total = end - start;
+    let frames = render_frames(
+        &mut follower,
+        positions.as_deref(),
+        start..end,
+        &view_cameras,
+        request.background,
+        out_dir,
+        &mut |k| progress("render", k, total),
+    )?;
+    let video = if request.video {
+        let fps = request
+            .fps
+            .unwrap_or_else(|| bundle.map_or(record.fps, |b| b.meta.fps));
+        Some(encode_mp4(out_dir, start, fps)?)
+    } else {
+        None
+    };
+    Ok(ClipSummary {
+        frames,
+        video,
+        rolled_out: bundle.is_some(),
+    })
+}

@@ -18,12 +18,13 @@ setup: system-packages lpips
 build: setup
 	$(CARGO) build --release --workspace --bins
 
-# Debian packages: ffmpeg encodes dm-render's MP4 (docs/ARCHITECTURE.md,
-# "Appearance": why not OpenCV). Installed only when missing; as root or via sudo.
-DEB_PACKAGES ?= ffmpeg
+# Debian packages: OpenCV (dm-render's MP4 through the opencv crate, which
+# generates its bindings with libclang at build time). Installed only when
+# missing; as root or via sudo.
+DEB_PACKAGES ?= libopencv-dev clang libclang-dev pkg-config
 system-packages:
-	@command -v ffmpeg >/dev/null || { \
-	  command -v apt-get >/dev/null || { echo "error: ffmpeg missing and no apt-get; install ffmpeg (or use dm-render --no-video)" >&2; exit 1; }; \
+	@{ pkg-config --exists opencv4 2>/dev/null && command -v clang >/dev/null && ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1; } || { \
+	  command -v apt-get >/dev/null || { echo "error: OpenCV/libclang missing and no apt-get; install $(DEB_PACKAGES) or equivalents" >&2; exit 1; }; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  echo "installing Debian packages: $(DEB_PACKAGES)"; \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(DEB_PACKAGES) >/dev/null; }

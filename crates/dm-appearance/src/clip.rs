@@ -1,12 +1,11 @@
 //! A rendered clip: the Gaussians following a rollout (or at rest), seen
 //! by the chosen cameras, written as PNG frames and an MP4.
 //!
-//! The MP4 is encoded by the `ffmpeg` program (H.264, yuv420p, the Debian
-//! package installed by `make setup`) rather than OpenCV's VideoWriter:
-//! see docs/ARCHITECTURE.md ("Appearance") for why.
+//! The MP4 is written by OpenCV's `VideoWriter` (feature `video`; H.264
+//! as `avc1`, MPEG-4 part 2 as `mp4v` where OpenCV's FFmpeg has no H.264
+//! encoder), from the PNG frames just written.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use dm_bundle::write_file_atomic;
 use dm_splat::{RenderSettings, render};
@@ -65,52 +64,100 @@ pub fn render_frames(
     Ok(written)
 }
 
-/// Encodes `out_dir/frame_%05d.png` from frame `first` on into
-/// `out_dir/render.mp4` with ffmpeg (written under a temporary name, then
-/// renamed).
-pub fn encode_mp4(out_dir: &Path, first: usize, fps: f64) -> Result<PathBuf, AppearanceError> {
+/// Encodes `out_dir/frame_NNNNN.png` for clip frames `frames` into
+/// `out_dir/render.mp4` (written under a temporary name, then renamed).
+#[cfg(feature = "video")]
+pub fn encode_mp4(
+    out_dir: &Path,
+    frames: std::ops::Range<usize>,
+    fps: f64,
+) -> Result<PathBuf, AppearanceError> {
+    use opencv::core::Size;
+    use opencv::prelude::{MatTraitConst, VideoWriterTrait, VideoWriterTraitConst};
+    use opencv::{imgcodecs, videoio};
+
     let path = out_dir.join(VIDEO_FILE);
-    let tmp = out_dir.join(format!(".{VIDEO_FILE}.{}.tmp.mp4", std::process::id()));
+    // OpenCV picks the container from the extension: keep `.mp4` last.
+    let tmp = out_dir.join(format!(".{}.tmp.{VIDEO_FILE}", std::process::id()));
     let video_err = |problem: String| AppearanceError::Video {
         path: path.clone(),
         problem,
     };
-    let output = Command::new("ffmpeg")
-        .args(["-y", "-loglevel", "error", "-framerate"])
-        .arg(format!("{fps}"))
-        .arg("-start_number")
-        .arg(first.to_string())
-        .arg("-i")
-        .arg(out_dir.join("frame_%05d.png"))
-        // yuv420p needs even sizes; players expect yuv420p.
-        .args([
-            "-vf",
-            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-            "-c:v",
-            "libx264",
-            "-pix_fmt",
-            "yuv420p",
-        ])
-        .arg(&tmp)
-        .output()
-        .map_err(|e| {
-            video_err(format!(
-                "could not run ffmpeg ({e}); install it with `make setup` (Debian package ffmpeg) or pass --no-video"
-            ))
-        })?;
-    if !output.status.success() {
+    let cv = |what: &str, e: opencv::Error| video_err(format!("OpenCV {what}: {e}"));
+    let read = |t: usize| -> Result<opencv::core::Mat, AppearanceError> {
+        let frame = out_dir.join(frame_file_name(t));
+        let name = frame
+            .to_str()
+            .ok_or_else(|| video_err(format!("frame path {} is not UTF-8", frame.display())))?;
+        let image =
+            imgcodecs::imread(name, imgcodecs::IMREAD_COLOR).map_err(|e| cv("imread", e))?;
+        if image.empty() {
+            return Err(video_err(format!(
+                "could not read frame {}",
+                frame.display()
+            )));
+        }
+        Ok(image)
+    };
+    let first = read(frames.start)?;
+    let size = first.size().map_err(|e| cv("frame size", e))?;
+    let tmp_name = tmp
+        .to_str()
+        .ok_or_else(|| video_err("output path is not UTF-8".into()))?
+        .to_string();
+    let mut writer = None;
+    for code in [['a', 'v', 'c', '1'], ['m', 'p', '4', 'v']] {
+        let fourcc = videoio::VideoWriter::fourcc(code[0], code[1], code[2], code[3])
+            .map_err(|e| cv("fourcc", e))?;
+        let candidate = videoio::VideoWriter::new(
+            &tmp_name,
+            fourcc,
+            fps,
+            Size::new(size.width, size.height),
+            true,
+        )
+        .map_err(|e| cv("VideoWriter", e))?;
+        if candidate.is_opened().map_err(|e| cv("VideoWriter", e))? {
+            writer = Some(candidate);
+            break;
+        }
+    }
+    let Some(mut writer) = writer else {
         let _ = std::fs::remove_file(&tmp);
-        return Err(video_err(format!(
-            "ffmpeg failed ({}): {}",
-            output.status,
-            String::from_utf8_lossy(&output.stderr).trim()
-        )));
+        return Err(video_err(
+            "OpenCV could open no MP4 encoder (avc1, mp4v); is libopencv-dev built with FFmpeg? (`make setup`)".into(),
+        ));
+    };
+    let mut write_all = || -> Result<(), AppearanceError> {
+        writer.write(&first).map_err(|e| cv("write", e))?;
+        for t in frames.start + 1..frames.end {
+            writer.write(&read(t)?).map_err(|e| cv("write", e))?;
+        }
+        writer.release().map_err(|e| cv("release", e))
+    };
+    if let Err(e) = write_all() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
     }
     std::fs::rename(&tmp, &path).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         video_err(format!("renaming the encoded video into place: {e}"))
     })?;
     Ok(path)
+}
+
+/// Without the `video` feature there is no encoder: an error saying so.
+#[cfg(not(feature = "video"))]
+pub fn encode_mp4(
+    out_dir: &Path,
+    _frames: std::ops::Range<usize>,
+    _fps: f64,
+) -> Result<PathBuf, AppearanceError> {
+    Err(AppearanceError::Video {
+        path: out_dir.join(VIDEO_FILE),
+        problem: "built without the `video` feature (OpenCV); rebuild with it or pass --no-video"
+            .into(),
+    })
 }
 
 /// What [`render_clip`] renders.
@@ -121,7 +168,7 @@ pub struct ClipRequest {
     /// else frame 0 alone (orbit: [`STATIC_ORBIT_FRAMES`] frames at rest).
     pub frames: Option<(usize, usize)>,
     pub background: [f64; 3],
-    /// Encode `render.mp4` (needs ffmpeg).
+    /// Encode `render.mp4` (needs the `video` feature).
     pub video: bool,
     /// Frames per second of the video (`None`: the scene's).
     pub fps: Option<f64>,
@@ -211,7 +258,7 @@ pub fn render_clip(
         let fps = request
             .fps
             .unwrap_or_else(|| bundle.map_or(record.fps, |b| b.meta.fps));
-        Some(encode_mp4(out_dir, start, fps)?)
+        Some(encode_mp4(out_dir, start..end, fps)?)
     } else {
         None
     };

@@ -37,7 +37,7 @@ struct RenderArgs {
     /// Frames per second of the video (default: the scene's).
     #[arg(long)]
     fps: Option<f64>,
-    /// Write PNG frames only (no ffmpeg needed).
+    /// Write PNG frames only (no MP4).
     #[arg(long)]
     no_video: bool,
 }

@@ -8,16 +8,26 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup lpips build demo test bench clean
+.PHONY: setup system-packages lpips build demo test bench clean
 
 # Everything the project needs beyond the Rust toolchain of the machine.
-# (Later stages add Debian/PyPI packages here: opencv, ...)
-setup: lpips
+setup: system-packages lpips
 	@command -v $(CARGO) >/dev/null || { echo "error: cargo not found; install Rust (rustup) first" >&2; exit 1; }
 	@$(CARGO) --version
 
 build: setup
 	$(CARGO) build --release --workspace --bins
+
+# Debian packages: OpenCV (dm-render's MP4 through the opencv crate, which
+# generates its bindings with libclang at build time). Installed only when
+# missing; as root or via sudo.
+DEB_PACKAGES ?= libopencv-dev clang libclang-dev pkg-config
+system-packages:
+	@{ pkg-config --exists opencv4 2>/dev/null && command -v clang >/dev/null && ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1; } || { \
+	  command -v apt-get >/dev/null || { echo "error: OpenCV/libclang missing and no apt-get; install $(DEB_PACKAGES) or equivalents" >&2; exit 1; }; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  echo "installing Debian packages: $(DEB_PACKAGES)"; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(DEB_PACKAGES) >/dev/null; }
 
 # A short fit keeps the demo to a few minutes on 2 cores; see dm-fit --help.
 DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4
@@ -28,6 +38,8 @@ demo: build
 	./target/release/dm-sim $(OUT)/scene --out $(OUT)/untrained
 	./target/release/dm-fit $(OUT)/scene --out $(OUT)/model $(DEMO_FIT)
 	./target/release/dm-sim $(OUT)/scene --model-dir $(OUT)/model --out $(OUT)/sim
+	./target/release/dm-appearance $(OUT)/model $(OUT)/scene
+	./target/release/dm-render $(OUT)/model --bundle $(OUT)/scene --view novel --out $(OUT)/render
 	./target/release/dm-eval $(OUT)/model $(OUT)/scene --out $(OUT)/eval
 	@echo
 	@echo "== DeformMaster demo summary =="
@@ -35,6 +47,8 @@ demo: build
 	@python3 -c 'import json,sys; t=json.load(open("$(OUT)/scene.truth.json")); u=json.load(open("$(OUT)/untrained/summary.json")); f=json.load(open("$(OUT)/sim/summary.json")); r=json.load(open("$(OUT)/model/fit_report.json")); print("truth        : E %.3g Pa, nu %.2f" % (t["material"]["E_pa"], t["material"]["nu"])); print("fitted       : E %.3g Pa, nu %.2f, kp %.3g, kd %.3g (%.0f s)" % (r["material"]["E_median_pa"], r["material"]["nu_median"], r["dca"]["kp"], r["dca"]["kd"], r["seconds"])); print("track error  : held-out %.1f mm untrained -> %.1f mm fitted" % (1e3*u["track_error_m"]["test"], 1e3*f["track_error_m"]["test"]))' || true
 	@echo "model        : $(OUT)/model (model.json, fit_report.json)"
 	@echo "metrics      : $(OUT)/eval/metrics.md  $(OUT)/eval/metrics.json  $(OUT)/eval/plots/"
+	@python3 -c 'import json; a=json.load(open("$(OUT)/model/appearance.json")); print("splats       : %d Gaussians, frame-0 PSNR train %.1f dB, held-out camera %.1f dB (%.0f s)" % (a["gaussian_count"], a["mean_train_psnr_db"], a["held_out_psnr_db"], a["fit_seconds"]))' || true
+	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 
 # LPIPS for dm-eval, offline at run time: a Python venv with the pinned

@@ -4,6 +4,8 @@
 use crate::image_metrics::{benchmark_pair, iou, psnr, ssim, without_hand};
 use crate::lpips::Lpips;
 use crate::{EvalError, FrameMetrics, Metrics, SplitMetrics, SplitName};
+use dm_appearance::SplatFollower;
+use dm_appearance::quality::{alpha_mask, to_rgb8};
 use dm_bundle::{Bundle, MaskKind};
 use dm_model::WorldModel;
 use dm_model::metrics::{frame_errors, split_mean};
@@ -19,6 +21,33 @@ pub struct EvalOptions {
     pub camera: usize,
     /// Frames to roll out and score (`None`: the whole clip).
     pub frames: Option<usize>,
+    /// The model's fitted first-frame Gaussian splats (issue 7), moved
+    /// along the rollout by LBS and rendered for the image metrics; `None`:
+    /// the particles are drawn as spheres ([`render_prediction`]).
+    pub splats: Option<dm_splat::Gaussians<f32>>,
+}
+
+/// Which renderer made the predicted images (`run.renderer` in metrics.json).
+pub fn renderer_name(options: &EvalOptions) -> &'static str {
+    if options.splats.is_some() {
+        "gaussian_splats"
+    } else {
+        "particle_spheres"
+    }
+}
+
+/// The fitted splats at one frame seen by the camera, on black: the 8-bit
+/// image and the silhouette (coverage ≥ 0.5, `dm_appearance::quality`).
+pub fn render_splat_prediction(
+    camera: &Camera,
+    gaussians: &dm_splat::Gaussians<f32>,
+) -> Result<(RgbImage, GrayImage), dm_splat::SplatError> {
+    let out = dm_splat::render(gaussians, camera, &dm_splat::RenderSettings::default())?;
+    let alpha = out.alpha();
+    Ok((
+        to_rgb8(out.image(), camera.width, camera.height),
+        alpha_mask(&alpha, camera.width, camera.height),
+    ))
 }
 
 /// The model's prediction as the camera sees it: the particles as splats of
@@ -99,13 +128,25 @@ pub fn evaluate(
     let camera = bundle_camera(bundle, options.camera)?;
     let up = bundle.meta.up_axis.unit_vector();
     let split = bundle.meta.split;
+    let mut follower = match &options.splats {
+        Some(g) => Some(SplatFollower::new(g.clone(), &model.particles)?),
+        None => None,
+    };
     let mut per_frame = Vec::with_capacity(frames);
     for (t, positions) in rollout.iter().enumerate() {
         let image_error = |source| EvalError::Image { frame: t, source };
         let observed = bundle.load_rgb(options.camera, t)?;
         let object_mask = bundle.load_mask(options.camera, t, MaskKind::Object)?;
         let hand_mask = bundle.load_mask(options.camera, t, MaskKind::Hand)?;
-        let (rendered, alpha) = render_prediction(&camera, model, positions, up);
+        let (rendered, alpha) = match follower.as_mut() {
+            Some(follower) => {
+                if t > 0 {
+                    follower.advance(positions)?;
+                }
+                render_splat_prediction(&camera, follower.gaussians())?
+            }
+            None => render_prediction(&camera, model, positions, up),
+        };
         let (truth, prediction) =
             benchmark_pair(&observed, &object_mask, &hand_mask, &rendered).map_err(image_error)?;
         let alpha = without_hand(&alpha, &hand_mask).map_err(image_error)?;

@@ -9,7 +9,9 @@ pub mod image_metrics;
 pub mod lpips;
 pub mod report;
 
-pub use evaluate::{EvalOptions, Evaluation, evaluate, render_prediction};
+pub use evaluate::{
+    EvalOptions, Evaluation, evaluate, render_prediction, render_splat_prediction, renderer_name,
+};
 pub use image_metrics::ImageMetricError;
 pub use lpips::{Lpips, LpipsError, LpipsPaths};
 
@@ -29,6 +31,8 @@ pub enum EvalError {
     },
     #[error(transparent)]
     Lpips(Box<LpipsError>),
+    #[error("splats: {0}")]
+    Splat(#[from] dm_splat::SplatError),
     #[error("invalid option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }

@@ -25,6 +25,9 @@ pub struct RunInfo {
     pub split: dm_bundle::Split,
     /// The LPIPS network file, or why LPIPS was skipped.
     pub lpips: String,
+    /// What drew the predicted images: `gaussian_splats` (the model's
+    /// fitted splats, MODEL_DIR/gaussians.ply) or `particle_spheres`.
+    pub renderer: String,
     pub rollout_and_metrics_seconds: f64,
     pub lpips_ms_per_frame: Option<f64>,
 }
@@ -106,7 +109,7 @@ pub fn markdown(metrics: &Metrics, run: &RunInfo) -> String {
     let _ = writeln!(md, "# dm-eval: {}\n", run.bundle);
     let _ = writeln!(
         md,
-        "Model `{}`; camera `{}` (index {}); {} frames, train [{}, {}), test [{}, {}); LPIPS: {}.\n",
+        "Model `{}`; camera `{}` (index {}); {} frames, train [{}, {}), test [{}, {}); renderer: {}; LPIPS: {}.\n",
         run.model,
         run.camera_name,
         run.camera,
@@ -115,6 +118,7 @@ pub fn markdown(metrics: &Metrics, run: &RunInfo) -> String {
         split.train[1],
         split.test[0],
         split.test[1],
+        run.renderer,
         run.lpips
     );
     let _ = write!(md, "| split |");

@@ -31,6 +31,7 @@
 //! (values are not clamped).
 
 pub mod error;
+pub mod fit;
 pub mod gaussians;
 pub mod lbs;
 pub mod ply;
@@ -39,8 +40,10 @@ pub mod project_backward;
 pub mod rasterize;
 pub mod rasterize_backward;
 pub mod render;
+pub mod ssim;
 pub mod tiles;
 
 pub use error::SplatError;
+pub use fit::{FitSettings, FitStep, FitView, LearningRates, fit_gaussians};
 pub use gaussians::{GaussianGrads, Gaussians};
 pub use render::{RenderOutput, RenderSettings, render, render_backward};

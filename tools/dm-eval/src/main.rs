@@ -87,10 +87,20 @@ fn main() -> Result<()> {
             .progress_chars("=> "),
     );
     let start = Instant::now();
+    // The fitted splats when dm-appearance made them, else particle spheres.
+    let splats = if dm_appearance::store::has_appearance(&args.model_dir) {
+        let (gaussians, _) = dm_appearance::load_appearance(&args.model_dir, &model)
+            .with_context(|| format!("reading the splats in {}", args.model_dir.display()))?;
+        Some(gaussians)
+    } else {
+        None
+    };
     let options = EvalOptions {
         camera: args.camera,
         frames: Some(frames),
+        splats,
     };
+    let renderer = dm_eval::renderer_name(&options).to_string();
     let evaluation = evaluate(
         &model,
         &bundle,
@@ -119,6 +129,7 @@ fn main() -> Result<()> {
         frames,
         split: bundle.meta.split,
         lpips: lpips_note,
+        renderer,
         rollout_and_metrics_seconds: seconds,
         lpips_ms_per_frame: lpips
             .is_some()

@@ -142,3 +142,60 @@ fn issue5_eval_rejects_a_missing_camera_and_skips_lpips_only_when_asked() {
     assert!(metrics["train"]["lpips"].is_null());
     assert!(metrics["train"]["psnr"].is_f64());
 }
+
+/// With splats in the model directory (issue 7) dm-eval renders them,
+/// says so in `run.renderer`, and its frame-0 PSNR on camera 0 is the one
+/// the fit recorded; without, it draws particle spheres.
+#[test]
+fn issue7_eval_uses_the_fitted_splats_when_present() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (scene, model_dir) = tiny_scene_and_model(dir.path());
+    let no_cache = dir.path().join("no-cache");
+    let args = [
+        "--lpips-dir",
+        no_cache.to_str().expect("utf-8 path"),
+        "--skip-lpips",
+        "--frames",
+        "3",
+    ];
+    let read_metrics = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).expect("metrics.json"))
+            .expect("json")
+    };
+    let out = dir.path().join("eval-particles");
+    let result = run_eval(&model_dir, &scene, &out, &args);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    assert_eq!(read_metrics(&out)["run"]["renderer"], "particle_spheres");
+
+    let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
+    let model: dm_model::WorldModel =
+        dm_bundle::read_json(&model_dir.join("model.json")).expect("model");
+    let options = dm_appearance::AppearanceOptions {
+        iterations: 10,
+        ..dm_appearance::AppearanceOptions::for_cameras(bundle.meta.cameras.len())
+    };
+    let (gaussians, record) =
+        dm_appearance::fit_appearance(&model, &bundle, &options, &mut |_| {}).expect("fit");
+    dm_appearance::save_appearance(&model_dir, &gaussians, &record).expect("save");
+    let out = dir.path().join("eval-splats");
+    let result = run_eval(&model_dir, &scene, &out, &args);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let metrics = read_metrics(&out);
+    assert_eq!(metrics["run"]["renderer"], "gaussian_splats");
+    let psnr0 = metrics["frames"][0]["psnr"].as_f64().expect("frame-0 PSNR");
+    let recorded = record.psnr[0].psnr_db;
+    assert!(
+        (psnr0 - recorded).abs() < 1e-9,
+        "dm-eval {psnr0} dB, fit record {recorded} dB"
+    );
+    let iou0 = metrics["frames"][0]["iou"].as_f64().expect("frame-0 IoU");
+    assert!(iou0 > 0.5, "frame-0 IoU {iou0}");
+}

@@ -60,12 +60,15 @@ pub struct MaterialFitConfig {
 }
 
 impl MaterialFitConfig {
-    /// Adam with the material and residual learning rates.
-    pub fn adam(&self) -> Result<Adam, OptimError> {
+    /// Adam with the material learning rate and, for a model with a
+    /// residual, the network's own (Adam refuses rates for absent groups).
+    pub fn adam(&self, model: &WorldModel) -> Result<Adam, OptimError> {
         let mut config = AdamConfig::with_learning_rate(self.learning_rate);
-        config
-            .group_learning_rates
-            .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
+        if model.residual.is_some() {
+            config
+                .group_learning_rates
+                .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
+        }
         Adam::new(config)
     }
 }
@@ -340,7 +343,7 @@ pub fn fit_material(
     config: &MaterialFitConfig,
     on_iteration: &mut dyn FnMut(&IterationReport),
 ) -> Result<Vec<IterationReport>, FitError> {
-    let mut adam = config.adam()?;
+    let mut adam = config.adam(model)?;
     let mut reports = Vec::with_capacity(config.iterations);
     for iteration in 0..config.iterations {
         let report = material_step(model, bundle, config, &mut adam, iteration)?;

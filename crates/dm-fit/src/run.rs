@@ -198,12 +198,13 @@ pub fn run_fit(
         ));
         saved
     } else {
+        let model = WorldModel::from_bundle(bundle, &options.model)?;
         Checkpoint {
             options: options.clone(),
             stage: Stage::Material1,
             iteration: 0,
-            model: WorldModel::from_bundle(bundle, &options.model)?,
-            adam: material_config(options, 0).adam()?,
+            adam: material_config(options, 0).adam(&model)?,
+            model,
             history: Vec::new(),
             gain_search: Vec::new(),
             seconds: 0.0,
@@ -256,7 +257,7 @@ pub fn run_fit(
                     progress("selecting actuator gains (CMA-ES)");
                     state.gain_search = select_gains(&mut state.model, bundle, options)?;
                 }
-                state.adam = material_config(options, 0).adam()?;
+                state.adam = material_config(options, 0).adam(&state.model)?;
                 state.stage = Stage::Material2;
             }
             Stage::Done => break,

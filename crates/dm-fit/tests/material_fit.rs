@@ -3,7 +3,7 @@
 
 use dm_bundle::Bundle;
 use dm_fit::material_fit::{MaterialFitConfig, fit_material};
-use dm_model::{ModelOptions, WorldModel};
+use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Action, Preset, SynthConfig};
 
 #[test]
@@ -21,7 +21,12 @@ fn issue3_material_stage_lowers_loss_and_moves_youngs_towards_truth() {
     )
     .expect("scene");
     let bundle = Bundle::open(&out).expect("bundle");
-    let mut model = WorldModel::from_bundle(&bundle, &ModelOptions::default()).expect("model");
+    // Physics only (issue 4 regression: a model without a residual must fit).
+    let options = ModelOptions {
+        residual: ResidualKind::None,
+        ..ModelOptions::default()
+    };
+    let mut model = WorldModel::from_bundle(&bundle, &options).expect("model");
     let (youngs_start, _) = model.material_medians();
     let fit = MaterialFitConfig {
         iterations: 8,

@@ -63,6 +63,13 @@ pub struct ResidualSpec {
     pub seed: u64,
 }
 
+/// Scale of the decoder's raw output before the bound. Adam's first steps
+/// move every weight by about the learning rate whatever the gradient's
+/// size; from a zero last layer that alone gave |Δv| ≈ 0.8 m/s (2.5 cm a
+/// frame) and the train loss jumped 170× in a rope fit. Scaled by 1e-2,
+/// early steps make cm/s corrections and the network grows into α.
+pub const OUTPUT_SCALE: f64 = 1e-2;
+
 /// Fourier bands of the node-position encoding (method.md §5: L = 6).
 pub const FOURIER_BANDS: usize = 6;
 const NODE_ENCODING: usize = 3 + 6 * FOURIER_BANDS;
@@ -324,8 +331,10 @@ impl Residual {
             .reshape((n * STENCIL, 1))?)
     }
 
-    /// α·tanh(|y|)·y/|y| row by row.
+    /// α·tanh(|y|)·y/|y| row by row, for y = OUTPUT_SCALE · raw output.
     fn bound(&self, y: &Tensor) -> Result<Tensor, ResidualError> {
+        let y = (y * OUTPUT_SCALE)?;
+        let y = &y;
         let norm = (y.sqr()?.sum_keepdim(D::Minus1)? + 1e-12)?.sqrt()?;
         Ok((y.broadcast_mul(&(norm.tanh()? / &norm)?)? * self.spec.alpha)?)
     }

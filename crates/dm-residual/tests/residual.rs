@@ -255,3 +255,32 @@ fn issue4_prediction_is_independent_of_thread_count() {
     };
     assert_eq!(run(1), run(2));
 }
+
+/// Issue 4 regression: Adam's first step moves every weight by about its
+/// learning rate (5e-3) whatever the gradient; from the fresh network that
+/// must give a small correction, not the 0.8 m/s that blew a rope fit up.
+#[test]
+fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
+    // The method's sizes: the blow-up grows with the decoder's width.
+    let method_sized = ResidualSpec {
+        size: NetworkSize::default(),
+        grid_dx: 1.0 / 32.0,
+        ..spec(ResidualKind::Pgnd)
+    };
+    let mut net = Residual::new(method_sized, DType::F32).expect("network");
+    // Gradient-aligned: every weight moves the same way (a sign pattern
+    // with random signs would mostly cancel).
+    let stepped: Vec<f64> = net
+        .parameters()
+        .expect("parameters")
+        .iter()
+        .map(|w| w + 5e-3)
+        .collect();
+    net.set_parameters(&stepped).expect("parameters");
+    let dv = net.predict(&cloud(500, 6)).expect("predict");
+    let largest = dv
+        .iter()
+        .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+        .fold(0.0, f64::max);
+    assert!(largest < 0.05, "one step moved |dv| to {largest} m/s");
+}

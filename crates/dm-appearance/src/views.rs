@@ -177,17 +177,8 @@ pub fn camera_from_spec(
     spec: &dm_bundle::CameraSpec,
     index: usize,
 ) -> Result<Camera, AppearanceError> {
-    Camera::from_matrix_4x4(
-        spec.width,
-        spec.height,
-        spec.fx,
-        spec.fy,
-        spec.cx,
-        spec.cy,
-        spec.world_to_camera,
-    )
-    .map_err(|e| AppearanceError::InvalidOption {
+    dm_model::preview::camera_from_spec(spec).map_err(|problem| AppearanceError::InvalidOption {
         option: format!("cameras[{index}]"),
-        problem: e.to_string(),
+        problem,
     })
 }

@@ -5,9 +5,9 @@ use dm_bundle::Bundle;
 use dm_view::{Camera, RenderOptions, Splat, render, side_by_side};
 use image::RgbImage;
 
-/// The bundle camera `index` as a renderer camera.
-pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle::BundleError> {
-    let spec = &bundle.meta.cameras[index];
+/// A recorded camera as a renderer camera (the one conversion; callers add
+/// where the spec came from to the error).
+pub fn camera_from_spec(spec: &dm_bundle::CameraSpec) -> Result<Camera, String> {
     Camera::from_matrix_4x4(
         spec.width,
         spec.height,
@@ -17,11 +17,16 @@ pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle:
         spec.cy,
         spec.world_to_camera,
     )
-    .map_err(|e| {
+    .map_err(|e| e.to_string())
+}
+
+/// The bundle camera `index` as a renderer camera.
+pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle::BundleError> {
+    camera_from_spec(&bundle.meta.cameras[index]).map_err(|problem| {
         dm_bundle::BundleError::new(
             bundle.root.join(dm_bundle::BUNDLE_JSON),
             format!("cameras[{index}].world_to_camera"),
-            e.to_string(),
+            problem,
         )
     })
 }

@@ -65,17 +65,18 @@ impl AppearanceOptions {
 /// 46.2 / 28.2 dB; docs/RESULTS.md), so the default stops early.
 pub const DEFAULT_ITERATIONS: usize = 60;
 
-/// The frame-0 target of bundle camera `index`: object pixels as observed,
-/// the rest the background; hand pixels weight 0.
-pub fn frame0_view(
+/// The target of bundle camera `index` at `frame`: object pixels as
+/// observed, the rest the background; hand pixels weight 0.
+pub fn frame_view(
     bundle: &Bundle,
     index: usize,
+    frame: usize,
     background: [f64; 3],
 ) -> Result<FitView, AppearanceError> {
     let camera = bundle_camera(bundle, index)?;
-    let rgb = bundle.load_rgb(index, 0)?;
-    let object = bundle.load_mask(index, 0, MaskKind::Object)?;
-    let hand = bundle.load_mask(index, 0, MaskKind::Hand)?;
+    let rgb = bundle.load_rgb(index, frame)?;
+    let object = bundle.load_mask(index, frame, MaskKind::Object)?;
+    let hand = bundle.load_mask(index, frame, MaskKind::Hand)?;
     let bg = background.map(|c| c as f32);
     let mut target = Vec::with_capacity(rgb.len() / 3);
     let mut weight = Vec::with_capacity(rgb.len() / 3);
@@ -256,7 +257,7 @@ pub fn fit_appearance(
     let (mut gaussians, spacing) = initial_gaussians(model, bundle, &train)?;
     let views: Vec<FitView> = train
         .iter()
-        .map(|&c| frame0_view(bundle, c, settings.background))
+        .map(|&c| frame_view(bundle, c, 0, settings.background))
         .collect::<Result<_, _>>()?;
     let fit_settings = FitSettings {
         iterations: options.iterations,

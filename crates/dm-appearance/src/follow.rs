@@ -1,7 +1,7 @@
 //! Gaussians that follow a rollout: bound once to the model's first-frame
 //! particles, moved frame to frame by the LBS bridge (method.md §6).
 
-use dm_splat::lbs::{LBS_NEIGHBORS, LbsBridge};
+use dm_splat::lbs::{LBS_NEIGHBORS, LbsBridge, SkinBinding};
 use dm_splat::{Gaussians, SplatError};
 
 /// The fitted Gaussians and their incremental skinning state.
@@ -30,6 +30,12 @@ impl SplatFollower {
     /// frame of a rollout, the particles in the model's order).
     pub fn advance(&mut self, positions: &[[f32; 3]]) -> Result<(), SplatError> {
         let current: Vec<[f64; 3]> = positions.iter().map(|p| p.map(f64::from)).collect();
-        self.bridge.advance(&mut self.gaussians, &current)
+        self.advance_f64(&current).map(|_| ())
+    }
+
+    /// [`advance`](Self::advance) for f64 positions, returning the skinning
+    /// weights used (for `dm_splat::lbs_backward`).
+    pub fn advance_f64(&mut self, positions: &[[f64; 3]]) -> Result<SkinBinding, SplatError> {
+        self.bridge.advance(&mut self.gaussians, positions)
     }
 }

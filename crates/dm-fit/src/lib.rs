@@ -1,6 +1,10 @@
-//! Fitting the DeformMaster world model to video tracks (method.md §7).
+//! Fitting the DeformMaster world model to video tracks (method.md §7):
+//! [`run::run_fit`] runs stage 1 (material with default gains), the CMA-ES
+//! gain selection, stage 2 (material with the selected gains) and stage 3
+//! (first-frame Gaussians, then RGB-guided refinement, [`rgb_stage`]);
+//! [`material_fit`] is one differentiated rollout and Adam step.
 //!
-//! For now this crate holds the optimisers of the fitting stages:
+//! The optimisers:
 //!
 //! * [`optim::Adam`] with the method's gradient clipping
 //!   ([`optim::clip_physics_gradients`]: 1.0 per physics parameter, 10.0
@@ -14,11 +18,10 @@
 //! `f64` values, stored unbounded; the model maps them through bounded
 //! activations (e.g. log-sigmoid for Young's modulus), so the optimisers
 //! never need to know about physical bounds.
-//!
-//! Losses and the training stages will be added here later.
 
 pub mod loss;
 pub mod material_fit;
 pub mod optim;
 pub mod plot;
+pub mod rgb_stage;
 pub mod run;

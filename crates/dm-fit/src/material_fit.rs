@@ -40,6 +40,8 @@ pub enum FitError {
     Loss(#[from] crate::loss::LossError),
     #[error(transparent)]
     Bundle(#[from] dm_bundle::BundleError),
+    #[error(transparent)]
+    Appearance(#[from] dm_appearance::AppearanceError),
     #[error("invalid fit option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }
@@ -94,6 +96,10 @@ pub struct IterationReport {
     pub youngs_median_pa: f64,
     pub poisson_median: f64,
     pub seconds: f64,
+    /// Stage 3: mean masked L1 of the frozen Gaussians over the training
+    /// frames and cameras (per pixel and channel), before the step.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rgb_l1: Option<f64>,
 }
 
 /// What stays fixed over a fit: frame-0 track matches and length pairs.
@@ -140,6 +146,15 @@ pub const RESIDUAL_CLIP_NORM: f64 = 5.0;
 /// Weight of the residual's regulariser Σ_p |Δv_p|² / n (method.md §5).
 pub const RESIDUAL_REGULARISER: f64 = 1e-3;
 
+/// An extra per-frame loss term (stage 3's photometric term): called for
+/// the frames 1, 2, … of the forward rollout in order, with the predicted
+/// particle positions at the end of that frame; returns its value and its
+/// gradient with respect to those positions.
+pub trait FrameTerm {
+    fn frame(&mut self, frame: usize, positions: &[[f64; 3]])
+    -> Result<(f64, Vec<[f64; 3]>), FitError>;
+}
+
 /// Gradients of the train loss.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LossGradients {
@@ -151,12 +166,13 @@ pub struct LossGradients {
 
 /// The train-split loss L_dyn (+ the residual's regulariser) of `model`
 /// over `frames` frames and its gradient with respect to the patch
-/// parameters and the residual's weights.
+/// parameters and the residual's weights; `extra` adds a per-frame term.
 pub fn loss_and_gradient(
     model: &WorldModel,
     bundle: &Bundle,
     frames: usize,
     window: usize,
+    mut extra: Option<&mut dyn FrameTerm>,
 ) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
     if frames < 2 {
@@ -191,15 +207,24 @@ pub fn loss_and_gradient(
             loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
-        let value = fixed.frame(bundle, t + 1, &world.positions())?;
+        let positions = world.positions();
+        let value = fixed.frame(bundle, t + 1, &positions)?;
         loss += value.value / steps as f64;
-        frame_grads.push(
-            value
-                .grad
-                .iter()
-                .map(|g| g.map(|c| c / steps as f64))
-                .collect(),
-        );
+        let mut grad: Vec<[f64; 3]> = value
+            .grad
+            .iter()
+            .map(|g| g.map(|c| c / steps as f64))
+            .collect();
+        if let Some(term) = extra.as_deref_mut() {
+            let (value, term_grad) = term.frame(t + 1, &positions)?;
+            loss += value;
+            for (g, d) in grad.iter_mut().zip(&term_grad) {
+                for c in 0..3 {
+                    g[c] += d[c];
+                }
+            }
+        }
+        frame_grads.push(grad);
     }
 
     // Backward: replay each frame with a tape, newest first.
@@ -297,17 +322,19 @@ pub fn fit_frames(bundle: &Bundle, config: &MaterialFitConfig) -> usize {
         .min(bundle.frame_count())
 }
 
-/// One clipped Adam step of the material stage on `model` (in place).
+/// One clipped Adam step of the material stage on `model` (in place);
+/// `extra` adds a per-frame term to L_dyn (stage 3).
 pub fn material_step(
     model: &mut WorldModel,
     bundle: &Bundle,
     config: &MaterialFitConfig,
     adam: &mut Adam,
     iteration: usize,
+    extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
     let (loss, grads) =
-        loss_and_gradient(model, bundle, fit_frames(bundle, config), config.window)?;
+        loss_and_gradient(model, bundle, fit_frames(bundle, config), config.window, extra)?;
     let mut all_grads = to_param_set(&grads.patches)?;
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
@@ -333,6 +360,7 @@ pub fn material_step(
         youngs_median_pa: youngs,
         poisson_median: poisson,
         seconds: start.elapsed().as_secs_f64(),
+        rgb_l1: None,
     })
 }
 
@@ -346,7 +374,7 @@ pub fn fit_material(
     let mut adam = config.adam(model)?;
     let mut reports = Vec::with_capacity(config.iterations);
     for iteration in 0..config.iterations {
-        let report = material_step(model, bundle, config, &mut adam, iteration)?;
+        let report = material_step(model, bundle, config, &mut adam, iteration, None)?;
         on_iteration(&report);
         reports.push(report);
     }

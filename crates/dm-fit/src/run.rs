@@ -7,6 +7,8 @@ use crate::material_fit::{
     FitError, IterationReport, MaterialFitConfig, fit_frames, material_step, train_loss,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
+use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
+use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
 use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use serde::{Deserialize, Serialize};
@@ -39,10 +41,24 @@ pub struct FitOptions {
     /// Seed of the gain search.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Iterations of stage 3, RGB-guided refinement (method.md §6): the
+    /// first-frame Gaussians are fitted, frozen, and their photometric
+    /// error joins L_dyn (0 skips the stage and the splat fit).
+    #[arg(long, default_value_t = 30)]
+    #[serde(default)]
+    pub rgb_iters: usize,
+    /// Weight of the photometric term L_rgb in stage 3.
+    #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
+    #[serde(default = "default_rgb_weight")]
+    pub rgb_weight: f64,
 }
 
 fn default_residual_lr() -> f64 {
     5e-3
+}
+
+fn default_rgb_weight() -> f64 {
+    DEFAULT_RGB_WEIGHT
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -51,6 +67,8 @@ pub enum Stage {
     Material1,
     Gains,
     Material2,
+    /// Stage 3: RGB-guided refinement with frozen Gaussians.
+    Rgb,
     Done,
 }
 
@@ -230,8 +248,14 @@ pub fn run_fit(
                 if state.iteration < total {
                     let config = material_config(options, total);
                     let index = state.history.len();
-                    let report =
-                        material_step(&mut state.model, bundle, &config, &mut state.adam, index)?;
+                    let report = material_step(
+                        &mut state.model,
+                        bundle,
+                        &config,
+                        &mut state.adam,
+                        index,
+                        None,
+                    )?;
                     progress(&format!(
                         "{:?} {}/{}: loss {:.3e} m², E {:.3e} Pa, nu {:.3}",
                         state.stage,
@@ -246,10 +270,67 @@ pub fn run_fit(
                 } else {
                     state.stage = if state.stage == Stage::Material1 {
                         Stage::Gains
+                    } else if options.rgb_iters > 0 {
+                        Stage::Rgb
                     } else {
                         Stage::Done
                     };
                     state.iteration = 0;
+                }
+            }
+            Stage::Rgb => {
+                if state.iteration < options.rgb_iters {
+                    let (gaussians, cameras) = if state.iteration == 0 {
+                        progress("stage 3: fitting the first-frame Gaussians");
+                        let appearance_options =
+                            AppearanceOptions::for_cameras(bundle.meta.cameras.len());
+                        let (gaussians, record) =
+                            fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})
+                                ?;
+                        save_appearance(out, &gaussians, &record)?;
+                        progress(&format!(
+                            "stage 3: {} Gaussians, frame-0 PSNR {:.1} dB (training cameras)",
+                            record.gaussian_count, record.mean_train_psnr_db
+                        ));
+                        (gaussians, record.train_cameras)
+                    } else {
+                        let (gaussians, record) =
+                            load_appearance(out, &state.model)?;
+                        (gaussians, record.train_cameras)
+                    };
+                    let config = material_config(options, options.rgb_iters);
+                    let steps = fit_frames(bundle, &config).saturating_sub(1);
+                    let mut term = RgbTerm::new(
+                        bundle,
+                        gaussians,
+                        &state.model.particles,
+                        &cameras,
+                        options.rgb_weight,
+                        steps,
+                    )?;
+                    let index = state.history.len();
+                    let mut report = material_step(
+                        &mut state.model,
+                        bundle,
+                        &config,
+                        &mut state.adam,
+                        index,
+                        Some(&mut term),
+                    )?;
+                    report.rgb_l1 = Some(term.mean_l1());
+                    progress(&format!(
+                        "Rgb {}/{}: loss {:.3e}, masked L1 {:.4}, E {:.3e} Pa, nu {:.3}",
+                        state.iteration + 1,
+                        options.rgb_iters,
+                        report.loss,
+                        term.mean_l1(),
+                        report.youngs_median_pa,
+                        report.poisson_median
+                    ));
+                    state.history.push(report);
+                    state.iteration += 1;
+                } else {
+                    state.stage = Stage::Done;
                 }
             }
             Stage::Gains => {

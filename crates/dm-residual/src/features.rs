@@ -9,6 +9,9 @@ pub const HISTORY: usize = 3;
 /// Input channels per particle.
 pub const CHANNELS: usize = 9 + 6 * HISTORY;
 
+/// Positions and velocities of every particle at one instant.
+pub type ParticleState = (Vec<[f64; 3]>, Vec<[f64; 3]>);
+
 /// The state after one frame's substeps, with its history (caller's
 /// particle order, SI units).
 #[derive(Clone, Debug, PartialEq)]
@@ -21,7 +24,7 @@ pub struct FrameInputs {
     pub x_start: Vec<[f64; 3]>,
     /// (x, v) at the starts of frames t−1, t−2, t−3, newest first; where
     /// the clip is younger than that, the oldest state repeats.
-    pub history: Vec<(Vec<[f64; 3]>, Vec<[f64; 3]>)>,
+    pub history: Vec<ParticleState>,
 }
 
 impl FrameInputs {
@@ -77,8 +80,8 @@ impl FrameInputs {
 pub fn history_of<S>(
     starts: &[S],
     t: usize,
-    state: impl Fn(&S) -> (Vec<[f64; 3]>, Vec<[f64; 3]>),
-) -> Vec<(Vec<[f64; 3]>, Vec<[f64; 3]>)> {
+    state: impl Fn(&S) -> ParticleState,
+) -> Vec<ParticleState> {
     (1..=HISTORY)
         .map(|back| state(&starts[t.saturating_sub(back)]))
         .collect()

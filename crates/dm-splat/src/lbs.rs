@@ -76,12 +76,13 @@ impl LbsBridge {
     }
 
     /// Moves the Gaussians with the particles from the previous frame to
-    /// `current`, then makes `current` the previous frame.
+    /// `current`, then makes `current` the previous frame. Returns the
+    /// skinning weights used, for [`crate::lbs_backward`].
     pub fn advance<T: Real>(
         &mut self,
         gaussians: &mut Gaussians<T>,
         current: &[[f64; 3]],
-    ) -> Result<(), SplatError> {
+    ) -> Result<SkinBinding, SplatError> {
         if current.len() != self.previous.len() {
             return Err(SplatError::Lbs(format!(
                 "{} particles this frame, {} bound",
@@ -92,37 +93,29 @@ impl LbsBridge {
         check_finite(current)?;
         gaussians.validate()?;
         let rotations = self.particle_rotations(current);
+        let means: Vec<Vector3<f64>> = gaussians.means.iter().map(|m| m.map(|c| c.to_f64())).collect();
+        let binding = self.bind(&means);
+        let new_means = skin_means(&binding, &means, &self.previous, current, &rotations);
         let quats: Vec<UnitQuaternion<f64>> = rotations
             .iter()
             .map(|r| UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r)))
             .collect();
-        let index = PointIndex::new(&self.previous);
-        let prev = &self.previous;
-        let moved: Vec<(Vector3<f64>, UnitQuaternion<f64>)> = (0..gaussians.len())
-            .into_par_iter()
-            .map(|g| {
-                let mean = gaussians.means[g].map(|c| c.to_f64());
-                let bones = index.nearest(&[mean.x, mean.y, mean.z], self.neighbors);
-                let total: f64 = bones
-                    .iter()
-                    .map(|(_, d)| 1.0 / (d + WEIGHT_DISTANCE_EPS))
-                    .sum();
-                let mut new_mean = Vector3::zeros();
+        let blended: Vec<UnitQuaternion<f64>> = binding
+            .bones
+            .par_iter()
+            .map(|bones| {
+                let reference = quats[bones[0].0 as usize].into_inner();
                 let mut blend = Quaternion::new(0.0, 0.0, 0.0, 0.0);
-                let reference = quats[bones[0].0].into_inner();
-                for &(b, d) in &bones {
-                    let w = 1.0 / (d + WEIGHT_DISTANCE_EPS) / total;
-                    let offset = mean - Vector3::from(prev[b]);
-                    new_mean += (rotations[b] * offset + Vector3::from(current[b])) * w;
+                for &(b, w) in bones {
                     // q and −q are the same rotation: align signs before summing.
-                    let q = quats[b].into_inner();
+                    let q = quats[b as usize].into_inner();
                     let sign = if q.dot(&reference) < 0.0 { -1.0 } else { 1.0 };
                     blend += q * (w * sign);
                 }
-                (new_mean, UnitQuaternion::from_quaternion(blend))
+                UnitQuaternion::from_quaternion(blend)
             })
             .collect();
-        for (g, (mean, rotation)) in moved.into_iter().enumerate() {
+        for (g, (mean, rotation)) in new_means.into_iter().zip(blended).enumerate() {
             let q = gaussians.rotations[g];
             let old = Quaternion::new(q[0].to_f64(), q[1].to_f64(), q[2].to_f64(), q[3].to_f64());
             let new = rotation.into_inner() * old;
@@ -130,8 +123,57 @@ impl LbsBridge {
             gaussians.rotations[g] = [new.w, new.i, new.j, new.k].map(T::lit);
         }
         self.previous = current.to_vec();
-        Ok(())
+        Ok(binding)
     }
+
+    /// Each Gaussian's K nearest particles at the previous frame and their
+    /// normalised inverse-distance weights.
+    pub fn bind(&self, means: &[Vector3<f64>]) -> SkinBinding {
+        let index = PointIndex::new(&self.previous);
+        let bones = means
+            .par_iter()
+            .map(|mean| {
+                let near = index.nearest(&[mean.x, mean.y, mean.z], self.neighbors);
+                let total: f64 = near.iter().map(|(_, d)| 1.0 / (d + WEIGHT_DISTANCE_EPS)).sum();
+                near.iter()
+                    .map(|&(b, d)| (b as u32, 1.0 / (d + WEIGHT_DISTANCE_EPS) / total))
+                    .collect()
+            })
+            .collect();
+        SkinBinding { bones }
+    }
+}
+
+/// The bones of every Gaussian for one frame's skinning: `(particle,
+/// weight)` pairs, weights summing to one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkinBinding {
+    pub bones: Vec<Vec<(u32, f64)>>,
+}
+
+/// New Gaussian means `Σ_b w_b (R_b (μ − x_b) + x_b')` for particle
+/// positions `previous` (x) → `current` (x') and per-particle rotations R.
+pub fn skin_means(
+    binding: &SkinBinding,
+    means: &[Vector3<f64>],
+    previous: &[[f64; 3]],
+    current: &[[f64; 3]],
+    rotations: &[Matrix3<f64>],
+) -> Vec<Vector3<f64>> {
+    binding
+        .bones
+        .par_iter()
+        .zip(means)
+        .map(|(bones, mean)| {
+            let mut new_mean = Vector3::zeros();
+            for &(b, w) in bones {
+                let b = b as usize;
+                let offset = mean - Vector3::from(previous[b]);
+                new_mean += (rotations[b] * offset + Vector3::from(current[b])) * w;
+            }
+            new_mean
+        })
+        .collect()
 }
 
 /// Proper rotation closest to `cross = Σ bᵢ aᵢᵀ` (maps the a's onto the

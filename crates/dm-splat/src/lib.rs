@@ -34,6 +34,7 @@ pub mod error;
 pub mod fit;
 pub mod gaussians;
 pub mod lbs;
+pub mod lbs_backward;
 pub mod ply;
 pub mod project;
 pub mod project_backward;

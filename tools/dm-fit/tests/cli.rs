@@ -14,6 +14,8 @@ const FAST: &[&str] = &[
     "4",
     "--patches",
     "8",
+    "--rgb-iters",
+    "2",
 ];
 
 fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
@@ -65,12 +67,23 @@ fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
     assert!(report["loss"]["final"].as_f64().is_some_and(f64::is_finite));
     assert!(report["seconds"].as_f64().is_some());
     assert_eq!(report["options"]["iters"], 2);
+    // Stage 3 ran its two steps after the three material steps.
+    let history = report["loss"]["history"].as_array().expect("history");
+    assert_eq!(history.len(), 5);
+    assert!(history[..3].iter().all(|h| h.get("rgb_l1").is_none()));
+    assert!(
+        history[3..]
+            .iter()
+            .all(|h| h["rgb_l1"].as_f64().is_some_and(|l| l > 0.0 && l < 1.0))
+    );
     for file in [
         "model.json",
         "youngs_pa.npy",
         "poisson.npy",
         "expert_weights.npy",
         "loss_curve.png",
+        "gaussians.ply",
+        "appearance.json",
     ] {
         assert!(whole.join(file).is_file(), "{file}");
     }
@@ -79,6 +92,14 @@ fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
     let paused = fit(&scene, &split, &["--stop-after", "2"]);
     assert!(String::from_utf8_lossy(&paused.stdout).contains("paused"));
     assert!(!split.join("model.json").exists());
+    // Pause again inside stage 3 (loop step 7: its first step, which fits
+    // and saves the Gaussians), so the second stage-3 step loads them.
+    fit(&scene, &split, &["--resume", "--stop-after", "5"]);
+    let checkpoint: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(split.join("checkpoint.json")).expect("checkpoint"))
+            .expect("json");
+    assert_eq!(checkpoint["stage"], "rgb");
+    assert_eq!(checkpoint["iteration"], 1);
     fit(&scene, &split, &["--resume"]);
     let model_whole = std::fs::read(whole.join("model.json")).expect("model");
     let model_split = std::fs::read(split.join("model.json")).expect("model");

@@ -1,0 +1,112 @@
+//! Stage 3 of the fit (method.md §6–7): RGB-guided refinement. The
+//! Gaussians fitted at frame 0 are frozen and skinned to the particles of
+//! each simulated frame (LBS); the masked L1 between their render and the
+//! observed image of every training camera joins L_dyn with weight
+//! `1e-2`, and its gradient flows through the skinning
+//! (`dm_splat::lbs_backward`) into the particle positions, and from there
+//! through the simulator's adjoint into the material fields and the
+//! residual.
+//!
+//! Targets as in the appearance fit (`dm_appearance::fit::frame_view`):
+//! object pixels as observed, every other pixel the renderer background,
+//! hand pixels excluded from the loss.
+
+use dm_appearance::fit::frame_view;
+use dm_appearance::SplatFollower;
+use dm_bundle::Bundle;
+use dm_splat::fit::{FitView, view_loss};
+use dm_splat::lbs_backward::skin_means_vjp;
+use dm_splat::{Gaussians, RenderSettings, render, render_backward};
+use nalgebra::Vector3;
+
+use crate::material_fit::{FitError, FrameTerm};
+
+/// Weight of L_rgb in stage 3 (method.md §6).
+pub const DEFAULT_RGB_WEIGHT: f64 = 1e-2;
+
+/// The photometric term of one stage-3 iteration: call [`FrameTerm::frame`]
+/// for frames 1, 2, … in order (the skinning is incremental).
+#[derive(Debug)]
+pub struct RgbTerm<'a> {
+    bundle: &'a Bundle,
+    follower: SplatFollower,
+    cameras: &'a [usize],
+    settings: RenderSettings,
+    /// Weight divided by the number of frames and cameras the term averages.
+    scale: f64,
+    /// Mean masked L1 over the frames and cameras seen so far (unweighted).
+    l1_sum: f64,
+    terms: usize,
+}
+
+impl<'a> RgbTerm<'a> {
+    /// The term for a rollout of `steps` frames after frame 0, on the
+    /// training `cameras` of the appearance fit; `particles` are the model's
+    /// frame-0 particles the Gaussians are bound to.
+    pub fn new(
+        bundle: &'a Bundle,
+        gaussians: Gaussians<f32>,
+        particles: &[[f64; 3]],
+        cameras: &'a [usize],
+        weight: f64,
+        steps: usize,
+    ) -> Result<Self, FitError> {
+        if cameras.is_empty() {
+            return Err(FitError::InvalidOption {
+                option: "--rgb-iters".into(),
+                problem: "the appearance record has no training camera".into(),
+            });
+        }
+        Ok(Self {
+            bundle,
+            follower: SplatFollower::new(gaussians, particles).map_err(appearance_error)?,
+            cameras,
+            settings: RenderSettings::default(),
+            scale: weight / (steps.max(1) * cameras.len()) as f64,
+            l1_sum: 0.0,
+            terms: 0,
+        })
+    }
+
+    /// Mean masked L1 (per pixel and channel) over the views seen so far.
+    pub fn mean_l1(&self) -> f64 {
+        self.l1_sum / self.terms.max(1) as f64
+    }
+
+    fn view(&self, camera: usize, frame: usize) -> Result<FitView, FitError> {
+        Ok(frame_view(self.bundle, camera, frame, self.settings.background)?)
+    }
+}
+
+fn appearance_error(e: dm_splat::SplatError) -> FitError {
+    FitError::Appearance(e.into())
+}
+
+impl FrameTerm for RgbTerm<'_> {
+    fn frame(&mut self, frame: usize, positions: &[[f64; 3]]) -> Result<(f64, Vec<[f64; 3]>), FitError> {
+        let binding = self.follower.advance_f64(positions).map_err(appearance_error)?;
+        let gaussians = self.follower.gaussians();
+        let mut value = 0.0;
+        let mut grad_means = vec![Vector3::<f64>::zeros(); gaussians.len()];
+        for &camera in self.cameras {
+            let view = self.view(camera, frame)?;
+            let forward = render(gaussians, &view.camera, &self.settings).map_err(appearance_error)?;
+            let rendered: Vec<[f64; 3]> = forward.image().iter().map(|p| p.map(f64::from)).collect();
+            let loss = view_loss(&rendered, &view, self.settings.background, 0.0);
+            self.l1_sum += loss.l1;
+            self.terms += 1;
+            value += self.scale * loss.l1;
+            let grad_image: Vec<[f32; 3]> = loss
+                .grad_image
+                .iter()
+                .map(|g| g.map(|v| (v * self.scale) as f32))
+                .collect();
+            let grads = render_backward(gaussians, &view.camera, &self.settings, &forward, &grad_image)
+                .map_err(appearance_error)?;
+            for (sum, g) in grad_means.iter_mut().zip(&grads.means) {
+                *sum += g.map(f64::from);
+            }
+        }
+        Ok((value, skin_means_vjp(&binding, &grad_means, positions.len())))
+    }
+}

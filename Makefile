@@ -33,7 +33,9 @@ system-packages:
 # Physics only: the neural residual (dm-fit's default, --residual pgnd) costs
 # about 0.7 s per frame and step on 2 cores, 3.4x the fit time, for a few
 # per cent at this length (docs/RESULTS.md, issue 4). DEMO_FIT="..." to try it.
-DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none
+# Stage 3 (first-frame Gaussians, then RGB-guided refinement; 30 steps by
+# default) gets one step here: dm-fit writes the splats dm-render uses.
+DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1
 
 demo: build
 	@rm -rf $(OUT) && mkdir -p $(OUT)
@@ -41,7 +43,6 @@ demo: build
 	./target/release/dm-sim $(OUT)/scene --residual none --out $(OUT)/untrained
 	./target/release/dm-fit $(OUT)/scene --out $(OUT)/model $(DEMO_FIT)
 	./target/release/dm-sim $(OUT)/scene --model-dir $(OUT)/model --out $(OUT)/sim
-	./target/release/dm-appearance $(OUT)/model $(OUT)/scene
 	./target/release/dm-render $(OUT)/model --bundle $(OUT)/scene --view novel --out $(OUT)/render
 	./target/release/dm-eval $(OUT)/model $(OUT)/scene --out $(OUT)/eval
 	@echo

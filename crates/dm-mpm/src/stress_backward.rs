@@ -1,6 +1,7 @@
 //! Backward twin of `stress.rs`: the adjoint of the per-particle impulse
 //! `affine = s τ(F) + m C`, `momentum = m (v + dt a)` with
-//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
+//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag), plus
+//! the viscous term `s η (C + Cᵀ)` when η ≠ 0.
 
 use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
 use crate::real::{Mat3, Real, Vec3};
@@ -59,10 +60,14 @@ pub fn particle_impulse_vjp<T: Real>(
             grad_v -= v * (k.drag_quadratic * v.dot(&grad_accel) / speed);
         }
     }
+    let mut grad_c = grad_affine * mass;
+    if k.viscosity != T::zero() {
+        grad_c += (grad_affine + grad_affine.transpose()) * (k.viscosity * stress_scale);
+    }
     ImpulseGrads {
         v: grad_v,
         f: kg.f,
-        c: grad_affine * mass,
+        c: grad_c,
         mu: kg.mu,
         lambda: kg.lambda,
         weights: kg.weights,

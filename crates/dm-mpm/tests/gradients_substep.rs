@@ -1,6 +1,7 @@
 //! Issue 3: the adjoint of a whole MPM substep (stress → P2G → grid update
 //! → G2P) against central finite differences in f64, for every input it
-//! reads: x, v, F, C, μ, λ, expert weights and the external acceleration.
+//! reads: x, v, F, C, μ, λ, expert weights and the external acceleration
+//! (with air drag and viscous damping on).
 
 use dm_mpm::PhysicsConfig;
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -52,6 +53,9 @@ fn scene(seed: u64, pure_neo_hookean: bool) -> Scene {
     config.empty_node_mass_ratio = 0.0;
     config.effects.air_drag_linear = 0.7;
     config.effects.air_drag_quadratic = 0.4;
+    // Viscous damping (issue 6): 4 dt η / (ρ dx²) ≈ 5 % of the APIC term,
+    // so a wrong viscous adjoint moves the C gradient far beyond FD_RTOL.
+    config.effects.viscosity = 50.0;
     let n = 60;
     let x: Vec<Vec3<f64>> = (0..n)
         .map(|_| Vec3::new(0.5, 0.5, 0.5) + rand_vec(&mut rng, 0.07))

@@ -91,12 +91,12 @@ impl EffectName {
     /// says why each is detectable).
     pub fn test_range(self) -> [f64; 2] {
         match self {
-            EffectName::AirDrag => [3.0, 6.0],
-            EffectName::AirDragQuadratic => [8.0, 15.0],
+            EffectName::AirDrag => [15.0, 30.0],
+            EffectName::AirDragQuadratic => [30.0, 60.0],
             EffectName::FloorFriction => [0.6, 1.0],
             EffectName::Plasticity => [0.02, 0.04],
             EffectName::StiffInclusion => [8.0, 15.0],
-            EffectName::ViscousDamping => [25.0, 40.0],
+            EffectName::ViscousDamping => [30.0, 40.0],
             EffectName::GroundTilt => [5.0, 10.0],
             EffectName::ActuatorLag => [0.08, 0.15],
             EffectName::DensityVariation => [2.0, 4.0],

@@ -23,7 +23,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let options = DiagnoseOptions::default();
     let mut results: Vec<SceneResult> = Vec::new();
     // Interleave null scenes among the hidden ones so a partial run has both.
-    let every = if null == 0 { u64::MAX } else { (hidden / null).max(1) + 1 };
+    let every = hidden.checked_div(null).map_or(u64::MAX, |r| r.max(1) + 1);
     let mut jobs = Vec::new();
     let (mut h, mut n) = (0, 0);
     let mut i = 0;

@@ -232,7 +232,6 @@ pub fn per_track_error(matched: &Matched, range: [usize; 2]) -> Vec<f64> {
 /// distance from the hands (at frame 0).
 pub fn region_errors(
     bundle: &Bundle,
-    matched: &Matched,
     per_track: &[f64],
     up: [f64; 3],
     axis: [f64; 3],
@@ -251,7 +250,8 @@ pub fn region_errors(
             .fold(f64::INFINITY, f64::min)
     };
     let mut out = Vec::new();
-    let groupings: [(&str, [&str; 3], Box<dyn Fn([f64; 3]) -> f64>); 3] = [
+    type Key<'a> = Box<dyn Fn([f64; 3]) -> f64 + 'a>;
+    let groupings: [(&str, [&str; 3], Key); 3] = [
         ("height", ["low", "middle", "high"], Box::new(|p| dot(p, up))),
         (
             "main axis",
@@ -264,7 +264,6 @@ pub fn region_errors(
             Box::new(hand_distance),
         ),
     ];
-    let _ = matched;
     for (what, names, key) in &groupings {
         let keys: Vec<f64> = first.iter().map(|p| key(*p)).collect();
         let mut sorted = keys.clone();

@@ -199,7 +199,7 @@ pub fn diagnose(
     let model_path = model_dir.join("model.json");
     let model: WorldModel = dm_bundle::read_json(&model_path)?;
     let truth_value: Option<serde_json::Value> = truth
-        .map(|path| dm_bundle::read_json::<serde_json::Value>(path))
+        .map(dm_bundle::read_json::<serde_json::Value>)
         .transpose()?;
     std::fs::create_dir_all(out).map_err(|e| DiagnoseError::Output {
         path: out.to_path_buf(),
@@ -209,13 +209,13 @@ pub fn diagnose(
     // Show.
     progress("base rollout", 0, 1);
     let (base, base_run) = score_model(&model, &bundle)?;
-    let split = bundle.meta.split.clone();
+    let split = bundle.meta.split;
     let matched = match_tracks(&bundle, &base_run.positions);
     let up = model.physics.floor.as_ref().map_or([0.0, 0.0, 1.0], |f| f.up);
     let floor_height = model.physics.floor.as_ref().map_or(0.0, |f| f.height);
     let axis = main_axis(&model.particles);
     let per_track_test = per_track_error(&matched, split.test);
-    let regions_test = region_errors(&bundle, &matched, &per_track_test, up, axis);
+    let regions_test = region_errors(&bundle, &per_track_test, up, axis);
     let samples = analysis::residual_accelerations(&matched, bundle.meta.fps);
     // Signatures from the training frames only: they orient the trials.
     let train_samples: Vec<_> = samples
@@ -389,7 +389,7 @@ pub fn diagnose(
     progress("plots and report", 0, 1);
     let plot_inputs = plots::PlotInputs {
         bundle: &bundle,
-        split: split.clone(),
+        split,
         base_track: &base.track_per_frame,
         extended_track: after_per_frame.as_deref(),
         per_track_test: &per_track_test,

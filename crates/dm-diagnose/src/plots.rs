@@ -197,12 +197,19 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
     let across: Vec<f64> = first.iter().map(|q| dot(*q, cross_axis)).collect();
     let flat = extent(&heights) < 0.3 * extent(&across);
     let vertical = if flat { &across } else { &heights };
-    let frame = Frame::new(
+    let mut frame = Frame::new(
         560,
         420,
         along.iter().copied(),
         vertical.iter().copied(),
     );
+    // Equal scale on both axes (a rope stays a rope): widen the narrower
+    // range about its centre to the canvas's aspect.
+    let (sx, sy) = (frame.x.1 - frame.x.0, frame.y.1 - frame.y.0);
+    let per_px = (sx / 500.0).max(sy / 360.0);
+    let (cx, cy) = (0.5 * (frame.x.0 + frame.x.1), 0.5 * (frame.y.0 + frame.y.1));
+    frame.x = (cx - 250.0 * per_px, cx + 250.0 * per_px);
+    frame.y = (cy - 180.0 * per_px, cy + 180.0 * per_px);
     let mut img = canvas(560, 420);
     let errs: Vec<f64> = p.per_track_test.to_vec();
     let emax = robust_abs_max(&errs);

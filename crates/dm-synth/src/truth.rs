@@ -188,7 +188,7 @@ fn density_axis(preset: Preset, seed: u64) -> (usize, bool) {
     let axis = (0..3)
         .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
         .unwrap_or(0);
-    (axis, splitmix(seed ^ 0xde05) % 2 == 0)
+    (axis, splitmix(seed ^ 0xde05).is_multiple_of(2))
 }
 
 /// Runs the truth simulation for `config`.

@@ -19,6 +19,10 @@ pub struct ImpulseGrads<T> {
     pub weights: [T; 3],
     /// Adjoint of the external (actuator) acceleration.
     pub external_accel: Vec3<T>,
+    /// This particle's share of the adjoints of the effect parameters
+    /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic), η (viscosity)]`;
+    /// a parameter's gradient is the sum over particles (issue 6).
+    pub effects: [T; 3],
 }
 
 /// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
@@ -53,6 +57,14 @@ pub fn particle_impulse_vjp<T: Real>(
     };
     let grad_accel = grad_momentum * (mass * k.dt);
     let mut grad_v = grad_momentum * mass;
+    // ∂a/∂k₁ = −v, ∂a/∂k₂ = −|v| v; ∂affine/∂η = s (C + Cᵀ).
+    let accel_along_v = grad_accel.dot(&v);
+    let c = &particles.c[p];
+    let effects = [
+        -accel_along_v,
+        -v.norm() * accel_along_v,
+        (c + c.transpose()).component_mul(grad_affine).sum() * stress_scale,
+    ];
     if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {
         let speed = v.norm();
         grad_v -= grad_accel * (k.drag_linear + k.drag_quadratic * speed);
@@ -76,5 +88,6 @@ pub fn particle_impulse_vjp<T: Real>(
         } else {
             Vec3::zeros()
         },
+        effects,
     }
 }

@@ -256,11 +256,15 @@ pub fn trials(candidate: Candidate, base: &WorldModel, s: &Signatures) -> Vec<Tr
                 .collect()
         }
         Candidate::ActuatorLag => {
-            let sign = if s.hand_shift_frames < 0.0 { -1.0 } else { 1.0 };
-            let mut lags = vec![2.0 * sign, 4.0 * sign];
-            if s.hand_shift_frames.abs() >= 1.0 {
-                lags.push(s.hand_shift_frames);
-            }
+            // The shift signature orients the trials when it is clear
+            // (≥ 1 frame); otherwise both signs are tried (a toy whose
+            // hands pull slowly hides a 3-frame lag from the centroid).
+            let lags = if s.hand_shift_frames.abs() >= 1.0 {
+                let sign = s.hand_shift_frames.signum();
+                vec![2.0 * sign, 4.0 * sign, s.hand_shift_frames]
+            } else {
+                vec![-3.0, 2.0, 4.0]
+            };
             lags.iter()
                 .map(|l| params(&[("lag_frames", *l)]))
                 .collect()

@@ -75,7 +75,7 @@ pub fn run_scene(
     let truth = dir.join("scene.truth.json");
     let model = dir.join("model");
     let out = dir.join("diagnosis");
-    if !scene.join("meta.json").is_file() {
+    if !scene.join("bundle.json").is_file() {
         generate(&config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| {
             DiagnoseError::Input {
                 path: scene.clone(),

@@ -21,7 +21,7 @@ use dm_bundle::Bundle;
 use dm_model::residual::{
     FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
-use dm_model::{ExpertChoice, ModelError, WorldModel, hand_step};
+use dm_model::{ExpertChoice, ModelError, WorldModel};
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
 use dm_mpm::{PatchParams, SimError};
@@ -200,7 +200,7 @@ pub fn loss_and_gradient(
         if network.is_some() {
             starts.push(frame_start(&world));
         }
-        let (from, to, grasp) = hand_step(bundle, t);
+        let (from, to, grasp) = model.hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
         if let Some(network) = &network {
             let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
@@ -238,7 +238,7 @@ pub fn loss_and_gradient(
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
         }
         world.set_state(&checkpoints[t])?;
-        let (from, to, grasp) = hand_step(bundle, t);
+        let (from, to, grasp) = model.hand_step(bundle, t);
         let tape = world.step_frame_taped(&from, &to, &grasp, window)?;
         let mut x_start_grad = None;
         if let (Some(network), Some(grad_residual)) = (&network, grad_residual.as_mut()) {
@@ -392,7 +392,7 @@ pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<
     let mut loss = 0.0;
     for t in 0..frames.saturating_sub(1) {
         starts.push(frame_start(&world));
-        let (from, to, grasp) = hand_step(bundle, t);
+        let (from, to, grasp) = model.hand_step(bundle, t);
         if world.step_frame(&from, &to, &grasp).is_err() {
             return Ok(f64::INFINITY);
         }

@@ -3,11 +3,13 @@
 //! up axis from the bundle, material patches on the first-frame
 //! particles, actuators driven by the hand tracks), and open-loop rollouts.
 
+pub mod extension;
 pub mod metrics;
 pub mod preview;
 pub mod residual;
 
 pub use dm_residual::ResidualKind;
+pub use extension::ModelExtension;
 pub use residual::ResidualState;
 
 use dm_bundle::{Bundle, Category};
@@ -107,6 +109,9 @@ pub struct WorldModel {
     /// saved before the residual existed have none).
     #[serde(default)]
     pub residual: Option<ResidualState>,
+    /// Physics added by a diagnosis (issue 6) beyond `physics.effects`.
+    #[serde(default, skip_serializing_if = "ModelExtension::is_empty")]
+    pub extension: ModelExtension,
 }
 
 /// Initial material of a category before any fitting: in the soft part of
@@ -243,6 +248,7 @@ impl WorldModel {
             particles,
             colors,
             surface_count,
+            extension: ModelExtension::default(),
         })
     }
 
@@ -282,15 +288,38 @@ impl WorldModel {
             .transpose()
     }
 
-    /// A fresh MPM world of this model at the first frame.
+    /// A fresh MPM world of this model at the first frame (with its
+    /// extension's stiff ball and density gradient).
     pub fn world(&self) -> Result<World<f32>, ModelError> {
-        Ok(World::new(
+        let mut material = self.particle_material();
+        self.extension
+            .apply_to_material(&self.particles, &mut material);
+        let mut world = World::new(
             self.physics.clone(),
             &self.particles,
             self.particle_volume,
-            self.particle_material(),
+            material,
             self.actuator,
-        )?)
+        )?;
+        if let Some(factors) = self.extension.density_factors(&self.particles) {
+            world.set_density_factors(&factors)?;
+        }
+        Ok(world)
+    }
+
+    /// The actuator input of the frame step t → t + 1 for this model:
+    /// [`hand_step`] with the extension's hand-track shift.
+    pub fn hand_step(
+        &self,
+        bundle: &Bundle,
+        t: usize,
+    ) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<bool>) {
+        if self.extension.hand_lag_frames == 0.0 {
+            return hand_step(bundle, t);
+        }
+        let from = self.extension.hand_anchors(bundle, t);
+        let grasp = vec![t == 0; from.len()];
+        (from, self.extension.hand_anchors(bundle, t + 1), grasp)
     }
 
     /// Open-loop rollout from the first frame, driven by the observed hand
@@ -310,7 +339,7 @@ impl WorldModel {
         let mut starts = Vec::new();
         for t in 0..frames.saturating_sub(1) {
             starts.push(residual::frame_start(&world));
-            let (from, to, grasp) = hand_step(bundle, t);
+            let (from, to, grasp) = self.hand_step(bundle, t);
             world.step_frame(&from, &to, &grasp)?;
             if let Some(network) = &network {
                 residual::apply_residual(&mut world, network, &starts, t)?;

@@ -19,6 +19,7 @@ pub struct FloorConfig {
 /// them in ground truth; the diagnosis stage adds them back as learnable
 /// terms. All zero / `None` means the base model of method.md.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct Effects {
     /// Linear air drag, 1/s: a = -k v.
     pub air_drag_linear: f64,
@@ -29,6 +30,11 @@ pub struct Effects {
     /// Plastic yield: singular values of F are projected into
     /// [1/(1+y), 1+y], so deformation beyond y is permanent.
     pub plastic_yield: Option<f64>,
+    /// Viscous (strain-rate) damping, Pa·s: Kirchhoff stress
+    /// τ_v = η (C + Cᵀ), C ≈ ∇v the APIC affine matrix. Explicit, so
+    /// stable only for η ≲ ρ dx² / (6 dt) (≈ 40 Pa·s at the model's 32³
+    /// grid over a 0.5 m domain).
+    pub viscosity: f64,
 }
 
 /// Everything the MPM world needs besides particles, material and actuators.

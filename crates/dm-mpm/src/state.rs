@@ -82,6 +82,8 @@ pub struct Consts<T> {
     pub floor: Option<FloorConsts<T>>,
     pub drag_linear: T,
     pub drag_quadratic: T,
+    /// Viscous damping η, Pa·s.
+    pub viscosity: T,
     /// Nodes lighter than this are empty.
     pub empty_node_mass: T,
 }
@@ -117,6 +119,7 @@ impl<T: Real> Consts<T> {
             }),
             drag_linear: T::lit(effects.air_drag_linear),
             drag_quadratic: T::lit(effects.air_drag_quadratic),
+            viscosity: T::lit(effects.viscosity),
             empty_node_mass: T::lit(config.empty_node_mass_ratio * mean_particle_mass),
         }
     }

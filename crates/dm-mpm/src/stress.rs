@@ -41,7 +41,12 @@ pub fn particle_impulse<T: Real>(
     let mass = particles.mass[p];
     let v = particles.v[p];
     let stress_scale = -k.dt * T::lit(4.0) * k.inv_dx * k.inv_dx * particles.volume[p];
-    let affine = kirchhoff * stress_scale + particles.c[p] * mass;
+    let c = &particles.c[p];
+    let mut affine = kirchhoff * stress_scale + c * mass;
+    if k.viscosity != T::zero() {
+        // Strain-rate damping: τ_v = η (C + Cᵀ).
+        affine += (c + c.transpose()) * (k.viscosity * stress_scale);
+    }
     let mut accel = Vec3::zeros();
     if let Some(ext) = inputs.external_accel {
         accel += ext[p];

@@ -1,6 +1,7 @@
 //! Backward twin of `stress.rs`: the adjoint of the per-particle impulse
 //! `affine = s τ(F) + m C`, `momentum = m (v + dt a)` with
-//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
+//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag), plus
+//! the viscous term `s η (C + Cᵀ)` when η ≠ 0.
 
 use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
 use crate::real::{Mat3, Real, Vec3};
@@ -18,6 +19,10 @@ pub struct ImpulseGrads<T> {
     pub weights: [T; 3],
     /// Adjoint of the external (actuator) acceleration.
     pub external_accel: Vec3<T>,
+    /// This particle's share of the adjoints of the effect parameters
+    /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic), η (viscosity)]`;
+    /// a parameter's gradient is the sum over particles (issue 6).
+    pub effects: [T; 3],
 }
 
 /// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
@@ -52,6 +57,14 @@ pub fn particle_impulse_vjp<T: Real>(
     };
     let grad_accel = grad_momentum * (mass * k.dt);
     let mut grad_v = grad_momentum * mass;
+    // ∂a/∂k₁ = −v, ∂a/∂k₂ = −|v| v; ∂affine/∂η = s (C + Cᵀ).
+    let accel_along_v = grad_accel.dot(&v);
+    let c = &particles.c[p];
+    let effects = [
+        -accel_along_v,
+        -v.norm() * accel_along_v,
+        (c + c.transpose()).component_mul(grad_affine).sum() * stress_scale,
+    ];
     if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {
         let speed = v.norm();
         grad_v -= grad_accel * (k.drag_linear + k.drag_quadratic * speed);
@@ -59,10 +72,14 @@ pub fn particle_impulse_vjp<T: Real>(
             grad_v -= v * (k.drag_quadratic * v.dot(&grad_accel) / speed);
         }
     }
+    let mut grad_c = grad_affine * mass;
+    if k.viscosity != T::zero() {
+        grad_c += (grad_affine + grad_affine.transpose()) * (k.viscosity * stress_scale);
+    }
     ImpulseGrads {
         v: grad_v,
         f: kg.f,
-        c: grad_affine * mass,
+        c: grad_c,
         mu: kg.mu,
         lambda: kg.lambda,
         weights: kg.weights,
@@ -71,5 +88,6 @@ pub fn particle_impulse_vjp<T: Real>(
         } else {
             Vec3::zeros()
         },
+        effects,
     }
 }

@@ -89,6 +89,9 @@ pub struct SubstepGrads<T> {
     pub lambda: Vec<T>,
     pub weights: Vec<[T; 3]>,
     pub external_accel: Vec<Vec3<T>>,
+    /// Per-particle shares of the effect-parameter adjoints (see
+    /// `ImpulseGrads::effects`); sum over particles for the gradient.
+    pub effects: Vec<[T; 3]>,
 }
 
 /// Accumulated wall time per solver stage (for benchmarks).
@@ -173,6 +176,7 @@ impl<T: Real> SubstepGrads<T> {
             lambda: vec![T::zero(); n],
             weights: vec![[T::zero(); 3]; n],
             external_accel: vec![Vec3::zeros(); n],
+            effects: vec![[T::zero(); 3]; n],
         }
     }
 
@@ -188,6 +192,7 @@ impl<T: Real> SubstepGrads<T> {
         self.lambda.resize(n, T::zero());
         self.weights.resize(n, [T::zero(); 3]);
         self.external_accel.resize(n, Vec3::zeros());
+        self.effects.resize(n, [T::zero(); 3]);
     }
 }
 
@@ -256,10 +261,11 @@ pub(crate) fn substep_backward_into<T: Real>(
         grads.lambda.par_iter_mut(),
         grads.weights.par_iter_mut(),
         grads.external_accel.par_iter_mut(),
+        grads.effects.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga))| {
+        .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga, ge))| {
             let scatter = p2g_particle_vjp(k, &impulse, p, grad_pre);
             let g = particle_impulse_vjp(k, &impulse, p, &scatter.affine, &scatter.momentum);
             // x and F also carry the gather's adjoint (g2p_backward); v
@@ -272,6 +278,7 @@ pub(crate) fn substep_backward_into<T: Real>(
             *glambda = g.lambda;
             *gw = g.weights;
             *ga = g.external_accel;
+            *ge = g.effects;
         });
     Ok(())
 }

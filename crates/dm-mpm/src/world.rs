@@ -217,6 +217,30 @@ impl<T: Real> World<T> {
         Ok(())
     }
 
+    /// Scales each particle's mass (caller's order) by `factors[i]` relative
+    /// to `volume × config.density`: a density varying across the object.
+    /// The CFL substep was chosen for `config.density`, so factors below 1
+    /// (lighter, faster waves) are refused.
+    pub fn set_density_factors(&mut self, factors: &[f64]) -> Result<(), SimError> {
+        if factors.len() != self.particle_count() {
+            return Err(SimError::InvalidInput(
+                "density factor count does not match particles".into(),
+            ));
+        }
+        if let Some(i) = factors.iter().position(|f| !(f.is_finite() && *f >= 1.0)) {
+            return Err(SimError::InvalidInput(format!(
+                "density factor of particle {i} must be finite and at least 1 \
+                 (lower config.density instead)"
+            )));
+        }
+        let density = self.config.density;
+        for (slot, &id) in self.id_of_slot.iter().enumerate() {
+            let volume = self.particles.volume[slot].to_f64();
+            self.particles.mass[slot] = T::lit(volume * density * factors[id as usize]);
+        }
+        Ok(())
+    }
+
     /// Sets the actuator gains (k_p in 1/s², k_d in 1/s).
     pub fn set_gains(&mut self, kp: f64, kd: f64) {
         self.actuators.config.kp = kp;

@@ -1,6 +1,8 @@
 //! Issue 3: the adjoint of a whole MPM substep (stress → P2G → grid update
 //! → G2P) against central finite differences in f64, for every input it
-//! reads: x, v, F, C, μ, λ, expert weights and the external acceleration.
+//! reads: x, v, F, C, μ, λ, expert weights and the external acceleration
+//! (with air drag and viscous damping on), and the effect parameters
+//! k₁, k₂ (drag) and η (viscosity).
 
 use dm_mpm::PhysicsConfig;
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -52,6 +54,9 @@ fn scene(seed: u64, pure_neo_hookean: bool) -> Scene {
     config.empty_node_mass_ratio = 0.0;
     config.effects.air_drag_linear = 0.7;
     config.effects.air_drag_quadratic = 0.4;
+    // Viscous damping (issue 6): 4 dt η / (ρ dx²) ≈ 5 % of the APIC term,
+    // so a wrong viscous adjoint moves the C gradient far beyond FD_RTOL.
+    config.effects.viscosity = 50.0;
     let n = 60;
     let x: Vec<Vec3<f64>> = (0..n)
         .map(|_| Vec3::new(0.5, 0.5, 0.5) + rand_vec(&mut rng, 0.07))
@@ -238,6 +243,21 @@ fn check_all_inputs(seed: u64, pure_neo_hookean: bool) {
                 .for_each(|(a, d)| *a += d * h)
         },
     );
+    // Effect parameters (issue 6): the per-particle shares summed in order.
+    // Their derivatives are small (∝ dt |v|, |v| ≲ 0.1 m/s here), so the
+    // FD_STEP-sized step would sit at the round-off floor of the O(1) loss;
+    // probing along a direction of length EFFECT_DIRECTION is a 1e-3 step,
+    // whose truncation error is still O(h²) ≈ 1e-6 relative.
+    const EFFECT_DIRECTION: f64 = 1e3;
+    let effect_names = ["air_drag_linear", "air_drag_quadratic", "viscosity"];
+    for (i, name) in effect_names.into_iter().enumerate() {
+        let analytic: f64 = EFFECT_DIRECTION * grads.effects.iter().map(|g| g[i]).sum::<f64>();
+        check(name, &s, &probe, analytic, &|t, h| match i {
+            0 => t.consts.drag_linear += EFFECT_DIRECTION * h,
+            1 => t.consts.drag_quadratic += EFFECT_DIRECTION * h,
+            _ => t.consts.viscosity += EFFECT_DIRECTION * h,
+        });
+    }
     if !pure_neo_hookean {
         let analytic: f64 = grads
             .weights

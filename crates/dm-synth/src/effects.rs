@@ -9,6 +9,9 @@ use std::collections::BTreeMap;
 pub enum EffectName {
     /// Linear air drag; magnitude = rate k in a = −k v (1/s).
     AirDrag,
+    /// Quadratic air drag; magnitude = k in a = −k |v| v (1/m). Diagnosed
+    /// as `air_drag` (the library's drag candidate carries both terms).
+    AirDragQuadratic,
     /// Coulomb friction on the floor; magnitude = coefficient μ.
     FloorFriction,
     /// Plastic yield; magnitude = yield stretch y (singular values of F are
@@ -16,22 +19,56 @@ pub enum EffectName {
     Plasticity,
     /// A stiffer ball inside the object; magnitude = stiffness factor.
     StiffInclusion,
+    /// Strain-rate damping; magnitude = viscosity η (Pa·s) in the Kirchhoff
+    /// stress τ_v = η (∇v + ∇vᵀ). Explicit: the truth grid is stable up
+    /// to ≈ 40 Pa·s.
+    ViscousDamping,
+    /// Gravity tilted against the recorded ground plane; magnitude = tilt
+    /// angle in degrees (azimuth drawn from the seed; the floor stays where
+    /// the bundle says).
+    GroundTilt,
+    /// The recorded hand track lags the hands that drove the object;
+    /// magnitude = lag in seconds (recorded(t) = true(t − lag)).
+    ActuatorLag,
+    /// Mass density varying linearly along the object's longest axis;
+    /// magnitude = a, density ∝ 1 + a·s with s from 0 at one end to 1 at
+    /// the other (end drawn from the seed), so one end is (1 + a)× heavier.
+    DensityVariation,
 }
 
 impl EffectName {
-    pub const ALL: [EffectName; 4] = [
+    pub const ALL: [EffectName; 9] = [
         EffectName::AirDrag,
+        EffectName::AirDragQuadratic,
         EffectName::FloorFriction,
         EffectName::Plasticity,
         EffectName::StiffInclusion,
+        EffectName::ViscousDamping,
+        EffectName::GroundTilt,
+        EffectName::ActuatorLag,
+        EffectName::DensityVariation,
     ];
 
     pub fn name(self) -> &'static str {
         match self {
             EffectName::AirDrag => "air_drag",
+            EffectName::AirDragQuadratic => "air_drag_quadratic",
             EffectName::FloorFriction => "floor_friction",
             EffectName::Plasticity => "plasticity",
             EffectName::StiffInclusion => "stiff_inclusion",
+            EffectName::ViscousDamping => "viscous_damping",
+            EffectName::GroundTilt => "ground_tilt",
+            EffectName::ActuatorLag => "actuator_lag",
+            EffectName::DensityVariation => "density_variation",
+        }
+    }
+
+    /// The diagnosis library's name for this hidden effect (`air_drag`
+    /// covers its linear and quadratic forms).
+    pub fn library_name(self) -> &'static str {
+        match self {
+            EffectName::AirDragQuadratic => "air_drag",
+            other => other.name(),
         }
     }
 
@@ -39,9 +76,30 @@ impl EffectName {
     pub fn default_magnitude(self) -> f64 {
         match self {
             EffectName::AirDrag => 4.0,
+            EffectName::AirDragQuadratic => 10.0,
             EffectName::FloorFriction => 0.8,
             EffectName::Plasticity => 0.03,
             EffectName::StiffInclusion => 10.0,
+            EffectName::ViscousDamping => 30.0,
+            EffectName::GroundTilt => 6.0,
+            EffectName::ActuatorLag => 0.1,
+            EffectName::DensityVariation => 3.0,
+        }
+    }
+
+    /// The magnitude range the diagnosis tests draw from (docs/diagnose.md
+    /// says why each is detectable).
+    pub fn test_range(self) -> [f64; 2] {
+        match self {
+            EffectName::AirDrag => [15.0, 30.0],
+            EffectName::AirDragQuadratic => [30.0, 60.0],
+            EffectName::FloorFriction => [0.6, 1.0],
+            EffectName::Plasticity => [0.02, 0.04],
+            EffectName::StiffInclusion => [8.0, 15.0],
+            EffectName::ViscousDamping => [30.0, 40.0],
+            EffectName::GroundTilt => [5.0, 10.0],
+            EffectName::ActuatorLag => [0.08, 0.15],
+            EffectName::DensityVariation => [2.0, 4.0],
         }
     }
 }
@@ -88,16 +146,24 @@ impl std::fmt::Display for EffectSpec {
 
 impl EffectSpec {
     /// The truth file's `{"name", "params"}` object.
+    /// `extra` holds what the truth simulation drew from the seed (the
+    /// inclusion's centre, the tilt's gravity, the heavy end's axis).
     pub fn params(
         &self,
         inclusion: Option<([f64; 3], f64)>,
+        extra: &BTreeMap<String, serde_json::Value>,
     ) -> BTreeMap<String, serde_json::Value> {
-        let mut p = BTreeMap::new();
+        let mut p = extra.clone();
         let key = match self.name {
             EffectName::AirDrag => "linear_per_s",
+            EffectName::AirDragQuadratic => "quadratic_per_m",
             EffectName::FloorFriction => "coefficient",
             EffectName::Plasticity => "yield_stretch",
             EffectName::StiffInclusion => "stiffness_factor",
+            EffectName::ViscousDamping => "viscosity_pa_s",
+            EffectName::GroundTilt => "tilt_deg",
+            EffectName::ActuatorLag => "lag_s",
+            EffectName::DensityVariation => "heavy_end_excess",
         };
         p.insert(key.to_string(), serde_json::json!(self.magnitude));
         if let Some((centre, radius)) = inclusion {
@@ -105,5 +171,49 @@ impl EffectSpec {
             p.insert("radius_m".into(), serde_json::json!(radius));
         }
         p
+    }
+}
+
+/// A hidden-effect draw for diagnosis tests (issue 6): a preset, and an
+/// effect from the library with a magnitude uniform in its
+/// [`EffectName::test_range`] — all from `seed`.
+pub fn draw_hidden_effect(seed: u64) -> (crate::Preset, EffectSpec) {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(crate::splitmix(seed ^ 0x00e7_7ec7));
+    let presets = [crate::Preset::Rope, crate::Preset::Cloth, crate::Preset::Toy];
+    let preset = presets[rng.random_range(0..presets.len())];
+    let name = EffectName::ALL[rng.random_range(0..EffectName::ALL.len())];
+    let [lo, hi] = name.test_range();
+    let magnitude = lo + (hi - lo) * rng.random::<f64>();
+    (preset, EffectSpec { name, magnitude })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn issue6_every_library_name_parses_with_its_default() {
+        for name in EffectName::ALL {
+            let spec: EffectSpec = name.name().parse().expect("known name");
+            assert_eq!(spec.magnitude, name.default_magnitude());
+            let [lo, hi] = name.test_range();
+            assert!(0.0 < lo && lo < hi, "{}", name.name());
+        }
+        assert!("ground_tilt:-3".parse::<EffectSpec>().is_err());
+        assert!("gravity_wobble".parse::<EffectSpec>().is_err());
+    }
+
+    #[test]
+    fn issue6_hidden_effect_draws_are_seeded_and_in_range() {
+        let mut seen = std::collections::BTreeSet::new();
+        for seed in 0..200 {
+            let (preset, spec) = draw_hidden_effect(seed);
+            assert_eq!((preset, spec), draw_hidden_effect(seed));
+            let [lo, hi] = spec.name.test_range();
+            assert!(lo <= spec.magnitude && spec.magnitude <= hi);
+            seen.insert(spec.name.name());
+        }
+        assert_eq!(seen.len(), EffectName::ALL.len());
     }
 }

@@ -321,7 +321,7 @@ fn observed_tracks(
             motion_valid[[t, k]] = seen && (t == 0 || visibility[[t - 1, k]]);
         }
     }
-    let m = truth.anchors[0].len();
+    let m = truth.recorded_anchors[0].len();
     let mut hand_points = Array3::<f32>::zeros((frames, m, 3));
     let mut hand_visibility = Array2::<bool>::from_elem((frames, m), false);
     for t in 0..frames {
@@ -329,7 +329,7 @@ fn observed_tracks(
             let seen = t == 0 || rng.random::<f64>() >= noise.hand_dropout;
             for a in 0..3 {
                 hand_points[[t, j, a]] = if seen {
-                    (truth.anchors[t][j][a] + noise.hand_sigma * unit.sample(rng)) as f32
+                    (truth.recorded_anchors[t][j][a] + noise.hand_sigma * unit.sample(rng)) as f32
                 } else {
                     hand_points[[t - 1, j, a]]
                 };

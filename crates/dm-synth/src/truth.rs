@@ -30,6 +30,11 @@ pub struct GroundTruth {
     pub frames: Vec<Vec<[f32; 3]>>,
     /// Anchor positions per recorded frame (all hands, concatenated).
     pub anchors: Vec<Vec<[f64; 3]>>,
+    /// What the hand tracker records per frame: `anchors`, or for
+    /// `actuator_lag` the anchors `lag` seconds earlier.
+    pub recorded_anchors: Vec<Vec<[f64; 3]>>,
+    /// Effect parameters drawn from the seed (truth file `effect.params`).
+    pub effect_extra: BTreeMap<String, serde_json::Value>,
     pub youngs_pa: Vec<f64>,
     pub poisson: Vec<f64>,
     pub inclusion: Option<([f64; 3], f64)>,
@@ -83,7 +88,7 @@ impl GroundTruth {
             },
             effect: config.effect.map(|e| TruthEffect {
                 name: e.name.name().into(),
-                params: e.params(self.inclusion),
+                params: e.params(self.inclusion, &self.effect_extra),
             }),
             action: config.resolved_action().name().into(),
             hands: self.hands.clone(),
@@ -170,6 +175,22 @@ fn truth_material(config: &SynthConfig, cloud: &ParticleCloud) -> TruthMaterialF
     }
 }
 
+/// An angle in [0, 2π) drawn from `seed`.
+fn seeded_angle(seed: u64) -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(splitmix(seed));
+    rng.random_range(0.0..std::f64::consts::TAU)
+}
+
+/// The axis along which `density_variation` grades the density (the
+/// preset's longest extent) and which end is heavy (from the seed).
+fn density_axis(preset: Preset, seed: u64) -> (usize, bool) {
+    let (lo, hi) = preset.bounds();
+    let axis = (0..3)
+        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+        .unwrap_or(0);
+    (axis, splitmix(seed ^ 0xde05).is_multiple_of(2))
+}
+
 /// Runs the truth simulation for `config`.
 pub fn simulate_truth(
     config: &SynthConfig,
@@ -228,6 +249,7 @@ pub fn simulate_truth(
     if let Some(floor) = physics.floor.as_mut() {
         floor.margin = 0.0;
     }
+    let mut effect_extra = BTreeMap::new();
     match config.effect {
         Some(EffectSpec {
             name: EffectName::AirDrag,
@@ -241,8 +263,54 @@ pub fn simulate_truth(
             name: EffectName::Plasticity,
             magnitude,
         }) => physics.effects.plastic_yield = Some(magnitude),
+        Some(EffectSpec {
+            name: EffectName::AirDragQuadratic,
+            magnitude,
+        }) => physics.effects.air_drag_quadratic = magnitude,
+        Some(EffectSpec {
+            name: EffectName::ViscousDamping,
+            magnitude,
+        }) => physics.effects.viscosity = magnitude,
+        Some(EffectSpec {
+            name: EffectName::GroundTilt,
+            magnitude,
+        }) => {
+            let azimuth = seeded_angle(config.seed ^ 0x7117);
+            let tilt = magnitude.to_radians();
+            let g = 9.8;
+            physics.gravity = [
+                g * tilt.sin() * azimuth.cos(),
+                g * tilt.sin() * azimuth.sin(),
+                -g * tilt.cos(),
+            ];
+            effect_extra.insert("azimuth_deg".into(), serde_json::json!(azimuth.to_degrees()));
+            effect_extra.insert("gravity".into(), serde_json::json!(physics.gravity));
+        }
         _ => {}
     }
+    let density_factors = match config.effect {
+        Some(EffectSpec {
+            name: EffectName::DensityVariation,
+            magnitude,
+        }) => {
+            let (axis, heavy_at_max) = density_axis(preset, config.seed);
+            let coords: Vec<f64> = cloud.positions.iter().map(|p| p[axis]).collect();
+            let lo = coords.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = coords.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            effect_extra.insert("axis".into(), serde_json::json!(axis));
+            effect_extra.insert("heavy_at_max".into(), serde_json::json!(heavy_at_max));
+            Some(
+                coords
+                    .iter()
+                    .map(|c| {
+                        let s = (c - lo) / (hi - lo).max(1e-9);
+                        1.0 + magnitude * if heavy_at_max { s } else { 1.0 - s }
+                    })
+                    .collect::<Vec<f64>>(),
+            )
+        }
+        _ => None,
+    };
     let material = ParticleMaterial::<f32>::from_fields(&youngs, &poisson, &weights);
     // Real fingers grip firmly: stiffer and tighter than the model's default actuators.
     let grip = ActuatorConfig {
@@ -258,6 +326,9 @@ pub fn simulate_truth(
         material,
         grip,
     )?;
+    if let Some(factors) = &density_factors {
+        world.set_density_factors(factors)?;
+    }
 
     let total = SETTLE_FRAMES + config.frames;
     let idle = vec![false; anchor_frames[0].len()];
@@ -273,12 +344,29 @@ pub fn simulate_truth(
         frames.push(as_f32(world.positions()));
         progress("truth simulation", SETTLE_FRAMES + t + 2, total);
     }
+    let lag_s = match config.effect {
+        Some(EffectSpec {
+            name: EffectName::ActuatorLag,
+            magnitude,
+        }) => magnitude,
+        _ => 0.0,
+    };
+    let recorded_anchors = (0..config.frames)
+        .map(|t| {
+            hands
+                .iter()
+                .flat_map(|h| h.anchors_at(t as f64 / FPS - lag_s))
+                .collect()
+        })
+        .collect();
     Ok(GroundTruth {
         preset,
         hands,
         cloud,
         frames,
         anchors: anchor_frames,
+        recorded_anchors,
+        effect_extra,
         youngs_pa: youngs,
         poisson,
         inclusion,

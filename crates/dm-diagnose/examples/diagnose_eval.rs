@@ -1,0 +1,72 @@
+//! The full hidden-effect evaluation of issue 6:
+//!
+//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]
+//!
+//! synthesises HIDDEN scenes (default 16) with a seeded random effect,
+//! preset and magnitude and NULL scenes (default 4) without, fits and
+//! diagnoses each, and writes OUT_DIR/results.jsonl (one line per scene,
+//! appended as scenes finish, so an interrupted run keeps its scenes and a
+//! rerun skips finished steps) and OUT_DIR/confusion.md.
+
+use dm_diagnose::DiagnoseOptions;
+use dm_diagnose::evaluation::{SceneResult, confusion_markdown, run_scene};
+use std::io::Write;
+use std::path::PathBuf;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let out = PathBuf::from(args.first().ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?);
+    let hidden: u64 = args.get(1).map_or(Ok(16), |s| s.parse())?;
+    let null: u64 = args.get(2).map_or(Ok(4), |s| s.parse())?;
+    let first: u64 = args.get(3).map_or(Ok(1000), |s| s.parse())?;
+    std::fs::create_dir_all(&out)?;
+    let options = DiagnoseOptions::default();
+    let mut results: Vec<SceneResult> = Vec::new();
+    // Interleave null scenes among the hidden ones so a partial run has both.
+    let every = hidden.checked_div(null).map_or(u64::MAX, |r| r.max(1) + 1);
+    let mut jobs = Vec::new();
+    let (mut h, mut n) = (0, 0);
+    let mut i = 0;
+    while h < hidden || n < null {
+        let is_null = n < null && (i % every == every - 1 || h >= hidden);
+        if is_null {
+            jobs.push((first + 500 + n, true));
+            n += 1;
+        } else {
+            jobs.push((first + h, false));
+            h += 1;
+        }
+        i += 1;
+    }
+    for (seed, is_null) in jobs {
+        let dir = out.join(format!("{}{}", if is_null { "null" } else { "hidden" }, seed));
+        let start = std::time::Instant::now();
+        match run_scene(seed, is_null, &dir, &options) {
+            Ok((r, _)) => {
+                println!(
+                    "seed {seed}: {} {} (hidden {}{}) → {} (conf {:.2}, best {:.3}), test track {:.2} → {:.2} mm, {:.0} s",
+                    r.preset,
+                    if r.expected == r.cause { "OK " } else { "BAD" },
+                    r.hidden,
+                    r.magnitude.map(|m| format!(":{m:.3}")).unwrap_or_default(),
+                    r.cause,
+                    r.confidence,
+                    r.best_score,
+                    1e3 * r.track_before,
+                    1e3 * r.track_after,
+                    start.elapsed().as_secs_f64()
+                );
+                let mut f = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(out.join("results.jsonl"))?;
+                writeln!(f, "{}", serde_json::to_string(&r)?)?;
+                results.push(r);
+                std::fs::write(out.join("confusion.md"), confusion_markdown(&results))?;
+            }
+            Err(e) => println!("seed {seed}: failed: {e}"),
+        }
+    }
+    println!("{}", confusion_markdown(&results));
+    Ok(())
+}

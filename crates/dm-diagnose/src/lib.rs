@@ -1,0 +1,562 @@
+//! Diagnosis of a fitted world model (issue 6).
+//!
+//! * **Show** ([`analysis`]): the fitted model rolled out open loop, its
+//!   errors per frame and per region, residual accelerations (observed
+//!   minus simulated) and the learned residual's Δv.
+//! * **Name** ([`candidates`], [`signatures`]): each library effect is
+//!   added to the fitted model (material and gains held fixed), its
+//!   parameter chosen on the training frames, and scored by the relative
+//!   reduction of the *test-split* track error it brings; the signatures
+//!   in the residual accelerations are printed as evidence. The cause is
+//!   the best candidate when its score clears [`NONE_THRESHOLD`].
+//! * **Extend / Measure**: the chosen effect's parameter is refined on the
+//!   training frames, the material refitted with the effect in place
+//!   (gradients through the differentiable simulator), and the extended
+//!   model written with its held-out gain.
+//!
+//! Output contract (docs/diagnose.md): `diagnosis.json` and `report.md`
+//! with PNG plots.
+
+pub mod analysis;
+pub mod candidates;
+pub mod evaluation;
+mod plots;
+mod report;
+pub mod signatures;
+
+use analysis::{Rollout, main_axis, match_tracks, per_track_error, region_errors, rollout};
+use candidates::{Candidate, Trial, apply, refinements, trials};
+use dm_bundle::{Bundle, write_json_atomic};
+use dm_fit::material_fit::{MaterialFitConfig, fit_material, train_loss};
+use dm_model::WorldModel;
+use dm_model::metrics::split_mean;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// A cause is named only when its score (the smaller of the train and
+/// held-out relative reductions of the track error) is at least this.
+/// Null scenes scored ≤ 0.003, undetected effects ≤ 0.05 and named ones
+/// 0.25–0.38 (docs/diagnose.md, docs/RESULTS.md).
+pub const NONE_THRESHOLD: f64 = 0.10;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    #[error(transparent)]
+    Model(#[from] dm_model::ModelError),
+    #[error(transparent)]
+    Simulation(#[from] dm_mpm::SimError),
+    #[error(transparent)]
+    Bundle(#[from] dm_bundle::BundleError),
+    #[error(transparent)]
+    Fit(#[from] dm_fit::material_fit::FitError),
+    #[error("{path}: {problem}")]
+    Input { path: PathBuf, problem: String },
+    #[error("writing {path}: {problem}")]
+    Output { path: PathBuf, problem: String },
+}
+
+/// Options of a diagnosis.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DiagnoseOptions {
+    /// Material Adam steps of the refit with the chosen effect in place
+    /// (0: effect parameter only).
+    pub refit_iters: usize,
+    /// Score threshold below which the cause is `none`.
+    pub none_threshold: f64,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            refit_iters: 2,
+            none_threshold: NONE_THRESHOLD,
+        }
+    }
+}
+
+/// One candidate's entry in `diagnosis.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct CandidateScore {
+    pub name: String,
+    /// min(held-out reduction, train reduction): what the candidate explains
+    /// on both the frames that chose its parameter and the held-out ones.
+    pub score: f64,
+    /// Relative reduction of the test-split track error (held out).
+    pub held_out_reduction: f64,
+    /// Relative reduction of the train-split track error (what chose the
+    /// parameter; reported, not used for naming).
+    pub train_reduction: f64,
+    pub parameters: BTreeMap<String, f64>,
+    pub signature: String,
+    /// Whether the signature points this candidate's way (None: no cheap
+    /// signature).
+    pub signature_agrees: Option<bool>,
+}
+
+/// `gain` of `diagnosis.json`: test split, metres.
+#[derive(Clone, Debug, Serialize)]
+pub struct Gain {
+    pub track_before: f64,
+    pub track_after: f64,
+    pub chamfer_before: f64,
+    pub chamfer_after: f64,
+}
+
+/// Fitted effect parameters against the truth file's.
+#[derive(Clone, Debug, Serialize)]
+pub struct TruthComparison {
+    pub truth_effect: String,
+    pub name_correct: bool,
+    pub truth_params: serde_json::Value,
+    /// `fitted / truth − 1` of the parameter both carry, when they do.
+    pub relative_error: Option<f64>,
+}
+
+/// `diagnosis.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Diagnosis {
+    pub cause: String,
+    pub confidence: f64,
+    pub candidates: Vec<CandidateScore>,
+    pub extended_model: Option<String>,
+    pub gain: Gain,
+    pub effect_parameters: BTreeMap<String, f64>,
+    pub threshold: f64,
+    pub signatures: signatures::Signatures,
+    pub regions_test: Vec<analysis::RegionError>,
+    pub truth: Option<TruthComparison>,
+    pub refit: Option<RefitRecord>,
+}
+
+/// What the refit did.
+#[derive(Clone, Debug, Serialize)]
+pub struct RefitRecord {
+    pub effect_trials: usize,
+    pub material_iterations: usize,
+    /// Training loss (dm-fit's L_dyn) before and after the material steps.
+    pub train_loss_before: f64,
+    pub train_loss_after: f64,
+    /// Whether the material steps were kept (they are dropped when they
+    /// raise the training track error).
+    pub material_kept: bool,
+    pub note: String,
+}
+
+/// Track / Chamfer of a rollout over train and test (NaN rows if it diverged).
+#[derive(Clone, Debug)]
+struct Scored {
+    track_train: f64,
+    track_test: f64,
+    chamfer_test: f64,
+    track_per_frame: Vec<f64>,
+}
+
+fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout), DiagnoseError> {
+    let run = rollout(model, bundle)?;
+    let errors = analysis::errors(model, bundle, &run.positions);
+    let split = &bundle.meta.split;
+    Ok((
+        Scored {
+            track_train: split_mean(&errors.track, split.train),
+            track_test: split_mean(&errors.track, split.test),
+            chamfer_test: split_mean(&errors.chamfer, split.test),
+            track_per_frame: errors.track,
+        },
+        run,
+    ))
+}
+
+/// A trial's errors; a diverging or unbuildable trial scores infinity
+/// (e.g. a stiffness needing more substeps than allowed).
+fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
+    score_model(model, bundle)
+        .map(|(s, _)| s)
+        .unwrap_or(Scored {
+            track_train: f64::INFINITY,
+            track_test: f64::INFINITY,
+            chamfer_test: f64::INFINITY,
+            track_per_frame: Vec::new(),
+        })
+}
+
+/// Progress: (what, done, total).
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+
+/// Runs the whole diagnosis of `model_dir` (dm-fit's output) on `bundle`
+/// and writes `out/diagnosis.json`, `out/report.md`, plots and, when a
+/// cause is named, `out/extended_model/model.json`.
+pub fn diagnose(
+    model_dir: &Path,
+    bundle_dir: &Path,
+    out: &Path,
+    truth: Option<&Path>,
+    options: &DiagnoseOptions,
+    progress: Progress<'_>,
+) -> Result<Diagnosis, DiagnoseError> {
+    let bundle = Bundle::open(bundle_dir)?;
+    let model_path = model_dir.join("model.json");
+    let model: WorldModel = dm_bundle::read_json(&model_path)?;
+    let truth_value: Option<serde_json::Value> = truth
+        .map(dm_bundle::read_json::<serde_json::Value>)
+        .transpose()?;
+    std::fs::create_dir_all(out).map_err(|e| DiagnoseError::Output {
+        path: out.to_path_buf(),
+        problem: e.to_string(),
+    })?;
+
+    // Show.
+    progress("base rollout", 0, 1);
+    let (base, base_run) = score_model(&model, &bundle)?;
+    let split = bundle.meta.split;
+    let matched = match_tracks(&bundle, &base_run.positions);
+    let up = model.physics.floor.as_ref().map_or([0.0, 0.0, 1.0], |f| f.up);
+    let floor_height = model.physics.floor.as_ref().map_or(0.0, |f| f.height);
+    let axis = main_axis(&model.particles);
+    let per_track_test = per_track_error(&matched, split.test);
+    let regions_test = region_errors(&bundle, &per_track_test, up, axis);
+    let samples = analysis::residual_accelerations(&matched, bundle.meta.fps);
+    // Signatures from the training frames only: they orient the trials.
+    let train_samples: Vec<_> = samples
+        .iter()
+        .copied()
+        .filter(|s| s.frame + analysis::ACCEL_STRIDE < split.train[1])
+        .collect();
+    let near_hand = near_hand_tracks(&bundle);
+    let hand_centroid: Vec<[f64; 3]> = (0..split.train[1])
+        .map(|t| centroid(&dm_model::hand_anchors(&bundle, t)))
+        .collect();
+    let train_matched = analysis::Matched {
+        observed: matched.observed[..split.train[1].min(matched.observed.len())].to_vec(),
+        simulated: matched.simulated[..split.train[1].min(matched.simulated.len())].to_vec(),
+    };
+    let sig = signatures::signatures(
+        &train_samples,
+        &train_matched,
+        &near_hand,
+        &hand_centroid,
+        up,
+        floor_height,
+        axis,
+    );
+
+    // Name.
+    let all_trials: Vec<Trial> = Candidate::ALL
+        .iter()
+        .flat_map(|&c| trials(c, &model, &sig))
+        .collect();
+    let total = all_trials.len();
+    let mut best_per_candidate: BTreeMap<&'static str, (Trial, Scored)> = BTreeMap::new();
+    for (i, trial) in all_trials.into_iter().enumerate() {
+        progress(&format!("candidate {}", trial.candidate.name()), i, total);
+        let scored = score_trial(&trial.model, &bundle);
+        let name = trial.candidate.name();
+        let better = best_per_candidate
+            .get(name)
+            .is_none_or(|(_, s)| scored.track_train < s.track_train);
+        if better {
+            best_per_candidate.insert(name, (trial, scored));
+        }
+    }
+    let relative = |before: f64, after: f64| {
+        if after.is_finite() && before > 0.0 {
+            (before - after) / before
+        } else {
+            -1.0
+        }
+    };
+    let mut candidates: Vec<CandidateScore> = Candidate::ALL
+        .iter()
+        .filter_map(|c| {
+            let (trial, scored) = best_per_candidate.get(c.name())?;
+            let (signature, signature_agrees) = c.signature_text(&sig);
+            let held_out = relative(base.track_test, scored.track_test);
+            let train_reduction = relative(base.track_train, scored.track_train);
+            Some(CandidateScore {
+                name: c.name().into(),
+                // A real effect explains error where its parameter was fitted
+                // and on the held-out frames; a term that only reshuffles the
+                // error of a misfit model helps on one split at most.
+                score: held_out.min(train_reduction),
+                held_out_reduction: held_out,
+                train_reduction,
+                parameters: trial.parameters.clone(),
+                signature,
+                signature_agrees,
+            })
+        })
+        .collect();
+    candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let best = candidates.first().map_or(0.0, |c| c.score.max(0.0));
+    let second = candidates.get(1).map_or(0.0, |c| c.score.max(0.0));
+    let named = best >= options.none_threshold;
+    let cause = if named {
+        candidates[0].name.clone()
+    } else {
+        "none".to_string()
+    };
+    let confidence = confidence(best, second, options.none_threshold);
+
+    // Extend and measure.
+    let mut extended: Option<(WorldModel, Scored, BTreeMap<String, f64>)> = None;
+    let mut refit = None;
+    if named {
+        let (trial, scored) = best_per_candidate
+            .remove(cause.as_str())
+            .ok_or_else(|| DiagnoseError::Input {
+                path: model_path.clone(),
+                problem: "internal: the named candidate has no trial".into(),
+            })?;
+        let mut best_trial = (trial, scored);
+        let refine = refinements(&best_trial.0, &model);
+        let effect_trials = refine.len();
+        for (i, t) in refine.into_iter().enumerate() {
+            progress("refining the effect parameter", i, effect_trials);
+            let s = score_trial(&t.model, &bundle);
+            if s.track_train < best_trial.1.track_train {
+                best_trial = (t, s);
+            }
+        }
+        let (trial, mut scored) = best_trial;
+        let mut extended_model = trial.model.clone();
+        let (record, refitted) =
+            refit_material(&extended_model, &bundle, trial.candidate, options, progress)?;
+        if let Some(refitted) = refitted {
+            let s = score_trial(&refitted, &bundle);
+            if s.track_train < scored.track_train {
+                extended_model = refitted;
+                scored = s;
+            }
+        }
+        let record = RefitRecord {
+            material_kept: extended_model != trial.model,
+            effect_trials,
+            ..record
+        };
+        refit = Some(record);
+        extended = Some((extended_model, scored, trial.parameters.clone()));
+    }
+    let extended_dir = out.join("extended_model");
+    let (gain, effect_parameters, after_per_frame) = match &extended {
+        Some((m, s, p)) => {
+            std::fs::create_dir_all(&extended_dir).map_err(|e| DiagnoseError::Output {
+                path: extended_dir.clone(),
+                problem: e.to_string(),
+            })?;
+            write_json_atomic(&extended_dir.join("model.json"), m)?;
+            (
+                Gain {
+                    track_before: base.track_test,
+                    track_after: s.track_test,
+                    chamfer_before: base.chamfer_test,
+                    chamfer_after: s.chamfer_test,
+                },
+                p.clone(),
+                Some(s.track_per_frame.clone()),
+            )
+        }
+        None => (
+            Gain {
+                track_before: base.track_test,
+                track_after: base.track_test,
+                chamfer_before: base.chamfer_test,
+                chamfer_after: base.chamfer_test,
+            },
+            BTreeMap::new(),
+            None,
+        ),
+    };
+    let truth_cmp = truth_value
+        .as_ref()
+        .map(|t| compare_truth(t, &cause, &effect_parameters, bundle.meta.fps));
+
+    let diagnosis = Diagnosis {
+        cause,
+        confidence,
+        candidates,
+        extended_model: extended
+            .as_ref()
+            .map(|_| extended_dir.display().to_string()),
+        gain,
+        effect_parameters,
+        threshold: options.none_threshold,
+        signatures: sig,
+        regions_test,
+        truth: truth_cmp,
+        refit,
+    };
+    progress("plots and report", 0, 1);
+    let plot_inputs = plots::PlotInputs {
+        bundle: &bundle,
+        split,
+        base_track: &base.track_per_frame,
+        extended_track: after_per_frame.as_deref(),
+        per_track_test: &per_track_test,
+        samples: &samples,
+        residual_dv: &base_run.residual_dv,
+        diagnosis: &diagnosis,
+        up,
+        axis,
+    };
+    let plot_files = plots::write_plots(&plot_inputs, out)?;
+    report::write_report(out, &diagnosis, &plot_files, &bundle, &base_run)?;
+    write_json_atomic(&out.join("diagnosis.json"), &diagnosis)?;
+    Ok(diagnosis)
+}
+
+/// Confidence in the answer, 0–1. For a named cause: the margin over the
+/// runner-up relative to the best score, times how far the best clears
+/// the threshold (saturating at twice the threshold). For `none`: how far
+/// the best score stays below the threshold.
+pub fn confidence(best: f64, second: f64, threshold: f64) -> f64 {
+    if best >= threshold {
+        let margin = ((best - second) / best).clamp(0.0, 1.0);
+        let clearance = (best / (2.0 * threshold)).clamp(0.0, 1.0);
+        (0.5 + 0.5 * margin) * clearance
+    } else {
+        (1.0 - best / threshold).clamp(0.0, 1.0)
+    }
+}
+
+fn centroid(points: &[[f64; 3]]) -> [f64; 3] {
+    let n = points.len().max(1) as f64;
+    [0, 1, 2].map(|a| points.iter().map(|p| p[a]).sum::<f64>() / n)
+}
+
+/// The third of the tracks nearest the hands at frame 0.
+fn near_hand_tracks(bundle: &Bundle) -> Vec<usize> {
+    let hands = dm_model::hand_anchors(bundle, 0);
+    let p = &bundle.tracks.object_points;
+    let mut d: Vec<(f64, usize)> = (0..p.shape()[1])
+        .map(|k| {
+            let x = [0, 1, 2].map(|a| p[[0, k, a]] as f64);
+            let dist = hands
+                .iter()
+                .map(|h| analysis::norm([h[0] - x[0], h[1] - x[1], h[2] - x[2]]))
+                .fold(f64::INFINITY, f64::min);
+            (dist, k)
+        })
+        .collect();
+    d.sort_by(|a, b| a.0.total_cmp(&b.0));
+    d.iter().take((d.len() / 3).max(1)).map(|x| x.1).collect()
+}
+
+/// A few material Adam steps with the effect in place. Floor friction has
+/// no adjoint in dm-mpm yet, so its refit is the effect parameter only.
+fn refit_material(
+    model: &WorldModel,
+    bundle: &Bundle,
+    candidate: Candidate,
+    options: &DiagnoseOptions,
+    progress: Progress<'_>,
+) -> Result<(RefitRecord, Option<WorldModel>), DiagnoseError> {
+    let frames = bundle.meta.split.train[1];
+    let before = train_loss(model, bundle, frames)?;
+    let blank = |note: &str| RefitRecord {
+        effect_trials: 0,
+        material_iterations: 0,
+        train_loss_before: before,
+        train_loss_after: before,
+        material_kept: false,
+        note: note.into(),
+    };
+    if options.refit_iters == 0 {
+        return Ok((blank("material refit disabled (--refit-iters 0)"), None));
+    }
+    if candidate == Candidate::FloorFriction {
+        return Ok((
+            blank("floor friction has no adjoint yet: effect parameter refitted, material kept"),
+            None,
+        ));
+    }
+    let mut refitted = model.clone();
+    let config = MaterialFitConfig {
+        iterations: options.refit_iters,
+        ..MaterialFitConfig::default()
+    };
+    let mut done = 0;
+    let result = fit_material(&mut refitted, bundle, &config, &mut |_| {
+        done += 1;
+        progress("refitting the material", done, options.refit_iters);
+    });
+    if let Err(e) = result {
+        return Ok((blank(&format!("material refit failed, kept the effect fit: {e}")), None));
+    }
+    let after = train_loss(&refitted, bundle, frames)?;
+    Ok((
+        RefitRecord {
+            effect_trials: 0,
+            material_iterations: options.refit_iters,
+            train_loss_before: before,
+            train_loss_after: after,
+            material_kept: false,
+            note: "effect parameter by search on the train split, then material Adam steps \
+                   through the simulator with the effect in place (gains held)"
+                .into(),
+        },
+        Some(refitted),
+    ))
+}
+
+/// The truth file's effect against the diagnosis. Parameter keys map
+/// truth → fitted (with unit conversions where they differ).
+fn compare_truth(
+    truth: &serde_json::Value,
+    cause: &str,
+    fitted: &BTreeMap<String, f64>,
+    fps: f64,
+) -> TruthComparison {
+    let effect = truth.get("effect").filter(|e| !e.is_null());
+    let truth_name = effect
+        .and_then(|e| e.get("name"))
+        .and_then(|n| n.as_str())
+        .unwrap_or("none")
+        .to_string();
+    let library_name = if truth_name == "air_drag_quadratic" {
+        "air_drag".to_string()
+    } else {
+        truth_name.clone()
+    };
+    let truth_params = effect
+        .and_then(|e| e.get("params"))
+        .cloned()
+        .unwrap_or(serde_json::Value::Null);
+    let get = |k: &str| truth_params.get(k).and_then(|v| v.as_f64());
+    let pairs: [(&str, &str, f64); 9] = [
+        ("linear_per_s", "linear_per_s", 1.0),
+        ("quadratic_per_m", "quadratic_per_m", 1.0),
+        ("coefficient", "coefficient", 1.0),
+        ("yield_stretch", "yield_stretch", 1.0),
+        ("stiffness_factor", "stiffness_factor", 1.0),
+        ("viscosity_pa_s", "viscosity_pa_s", 1.0),
+        ("tilt_deg", "tilt_deg", 1.0),
+        ("lag_s", "lag_frames", 1.0 / fps),
+        ("heavy_end_excess", "heavy_end_excess", 1.0),
+    ];
+    let relative_error = if library_name == cause {
+        pairs.iter().find_map(|(tk, fk, scale)| {
+            let t = get(tk)?;
+            let f = fitted.get(*fk)? * scale;
+            // The density gradient's sign depends on the axis direction; compare magnitudes.
+            let f = if *fk == "heavy_end_excess" { f.abs() } else { f };
+            (t != 0.0).then(|| f / t - 1.0)
+        })
+    } else {
+        None
+    };
+    TruthComparison {
+        name_correct: library_name == cause,
+        truth_effect: truth_name,
+        truth_params,
+        relative_error,
+    }
+}
+
+/// Re-exported for the CLI and tests: the model with one candidate applied.
+pub fn model_with(
+    base: &WorldModel,
+    candidate: Candidate,
+    parameters: &BTreeMap<String, f64>,
+) -> WorldModel {
+    apply(base, candidate, parameters)
+}

@@ -1,0 +1,385 @@
+//! The report's PNGs. No font is bundled (as in dm-view's charts), so
+//! axes and ranges are written in report.md beside each picture.
+
+use crate::analysis::{AccelSample, dot, norm};
+use crate::{DiagnoseError, Diagnosis};
+use dm_bundle::{Bundle, Split, write_file_atomic};
+use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
+use image::{Rgb, RgbImage};
+use std::path::Path;
+
+pub(crate) struct PlotInputs<'a> {
+    pub bundle: &'a Bundle,
+    pub split: Split,
+    pub base_track: &'a [f64],
+    pub extended_track: Option<&'a [f64]>,
+    pub per_track_test: &'a [f64],
+    pub samples: &'a [AccelSample],
+    pub residual_dv: &'a [f64],
+    pub diagnosis: &'a Diagnosis,
+    pub up: [f64; 3],
+    pub axis: [f64; 3],
+}
+
+/// A written plot and the ranges its axes span (for the report).
+#[derive(Clone, Debug)]
+pub(crate) struct PlotFile {
+    pub file: String,
+    pub caption: String,
+}
+
+const RED: [u8; 3] = [200, 40, 40];
+const BLUE: [u8; 3] = [40, 90, 200];
+const GREY: [u8; 3] = [150, 150, 150];
+
+fn save(image: &RgbImage, out: &Path, name: &str) -> Result<(), DiagnoseError> {
+    let path = out.join(name);
+    write_file_atomic(&path, |tmp| {
+        image
+            .save_with_format(tmp, image::ImageFormat::Png)
+            .map_err(std::io::Error::other)
+    })?;
+    Ok(())
+}
+
+/// Blue (low) → red (high).
+fn heat(t: f64) -> [u8; 3] {
+    let t = t.clamp(0.0, 1.0);
+    [
+        (40.0 + 200.0 * t) as u8,
+        (60.0 + 120.0 * (1.0 - (2.0 * t - 1.0).abs())) as u8,
+        (220.0 - 190.0 * t) as u8,
+    ]
+}
+
+fn dot_at(img: &mut RgbImage, x: f64, y: f64, r: i64, color: [u8; 3]) {
+    let (cx, cy) = (x.round() as i64, y.round() as i64);
+    for dy in -r..=r {
+        for dx in -r..=r {
+            if dx * dx + dy * dy > r * r {
+                continue;
+            }
+            let (px, py) = (cx + dx, cy + dy);
+            if px >= 0 && py >= 0 && (px as u32) < img.width() && (py as u32) < img.height() {
+                img.put_pixel(px as u32, py as u32, Rgb(color));
+            }
+        }
+    }
+}
+
+fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), color: [u8; 3]) {
+    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for i in 0..=steps {
+        let t = i as f64 / steps as f64;
+        dot_at(img, a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1), 0, color);
+    }
+}
+
+/// Maps data ranges onto a canvas with a 30 px margin.
+struct Frame {
+    w: f64,
+    h: f64,
+    x: (f64, f64),
+    y: (f64, f64),
+}
+
+impl Frame {
+    fn new(w: u32, h: u32, xs: impl Iterator<Item = f64>, ys: impl Iterator<Item = f64>) -> Self {
+        let span = |it: &mut dyn Iterator<Item = f64>| {
+            let (lo, hi) = it
+                .filter(|v| v.is_finite())
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| (l.min(v), h.max(v)));
+            if !lo.is_finite() {
+                (0.0, 1.0)
+            } else if hi - lo < 1e-12 {
+                (lo - 0.5, hi + 0.5)
+            } else {
+                (lo, hi)
+            }
+        };
+        let mut xs = xs;
+        let mut ys = ys;
+        Self {
+            w: w as f64,
+            h: h as f64,
+            x: span(&mut xs),
+            y: span(&mut ys),
+        }
+    }
+
+    fn px(&self, x: f64, y: f64) -> (f64, f64) {
+        let m = 30.0;
+        (
+            m + (x - self.x.0) / (self.x.1 - self.x.0) * (self.w - 2.0 * m),
+            self.h - m - (y - self.y.0) / (self.y.1 - self.y.0) * (self.h - 2.0 * m),
+        )
+    }
+}
+
+fn canvas(w: u32, h: u32) -> RgbImage {
+    RgbImage::from_pixel(w, h, Rgb([255, 255, 255]))
+}
+
+/// Robust symmetric range: the 98th percentile of |values|.
+fn robust_abs_max(values: &[f64]) -> f64 {
+    let mut a: Vec<f64> = values.iter().filter(|v| v.is_finite()).map(|v| v.abs()).collect();
+    if a.is_empty() {
+        return 1.0;
+    }
+    a.sort_by(f64::total_cmp);
+    a[(a.len() * 98 / 100).min(a.len() - 1)].max(1e-9)
+}
+
+pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile>, DiagnoseError> {
+    let mut files = Vec::new();
+
+    // 1. Track error per frame, before (red) and after (blue) the extension.
+    let mut series = vec![ChartSeries {
+        values: p.base_track,
+        color: RED,
+    }];
+    if let Some(after) = p.extended_track {
+        series.push(ChartSeries {
+            values: after,
+            color: BLUE,
+        });
+    }
+    let chart = line_chart(
+        &series,
+        &ChartOptions {
+            width: 640,
+            height: 300,
+            scale: ValueScale::Linear,
+            markers: vec![p.split.test[0]],
+        },
+    );
+    save(&chart, out, "error_vs_time.png")?;
+    let max_err = p
+        .base_track
+        .iter()
+        .chain(p.extended_track.unwrap_or(&[]))
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    files.push(PlotFile {
+        file: "error_vs_time.png".into(),
+        caption: format!(
+            "Track error per frame (x: frame 0–{}, y: 0–{:.1} mm). Red: fitted model; blue: \
+             extended model. Dotted line: start of the held-out test split (frame {}).",
+            p.base_track.len().saturating_sub(1),
+            1e3 * max_err,
+            p.split.test[0]
+        ),
+    });
+
+    // 2. Error map on the object: tracked points at frame 0 projected on
+    // (main axis, up) — or (main axis, second axis) for flat objects —
+    // coloured by their test-split error.
+    let tracks = &p.bundle.tracks.object_points;
+    let first: Vec<[f64; 3]> = (0..tracks.shape()[1])
+        .map(|k| [0, 1, 2].map(|a| tracks[[0, k, a]] as f64))
+        .collect();
+    let heights: Vec<f64> = first.iter().map(|q| dot(*q, p.up)).collect();
+    let extent = |v: &[f64]| {
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+            - v.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    let along: Vec<f64> = first.iter().map(|q| dot(*q, p.axis)).collect();
+    let cross_axis = {
+        let c = [
+            p.up[1] * p.axis[2] - p.up[2] * p.axis[1],
+            p.up[2] * p.axis[0] - p.up[0] * p.axis[2],
+            p.up[0] * p.axis[1] - p.up[1] * p.axis[0],
+        ];
+        let n = norm(c).max(1e-12);
+        c.map(|x| x / n)
+    };
+    let across: Vec<f64> = first.iter().map(|q| dot(*q, cross_axis)).collect();
+    let flat = extent(&heights) < 0.3 * extent(&across);
+    let vertical = if flat { &across } else { &heights };
+    let mut frame = Frame::new(
+        560,
+        420,
+        along.iter().copied(),
+        vertical.iter().copied(),
+    );
+    // Equal scale on both axes (a rope stays a rope): widen the narrower
+    // range about its centre to the canvas's aspect.
+    let (sx, sy) = (frame.x.1 - frame.x.0, frame.y.1 - frame.y.0);
+    let per_px = (sx / 500.0).max(sy / 360.0);
+    let (cx, cy) = (0.5 * (frame.x.0 + frame.x.1), 0.5 * (frame.y.0 + frame.y.1));
+    frame.x = (cx - 250.0 * per_px, cx + 250.0 * per_px);
+    frame.y = (cy - 180.0 * per_px, cy + 180.0 * per_px);
+    let mut img = canvas(560, 420);
+    let errs: Vec<f64> = p.per_track_test.to_vec();
+    let emax = robust_abs_max(&errs);
+    let mut order: Vec<usize> = (0..first.len()).collect();
+    order.sort_by(|&a, &b| errs[a].total_cmp(&errs[b]));
+    for k in order {
+        if !errs[k].is_finite() {
+            continue;
+        }
+        let (x, y) = frame.px(along[k], vertical[k]);
+        dot_at(&mut img, x, y, 4, heat(errs[k] / emax));
+    }
+    for h in dm_model::hand_anchors(p.bundle, 0) {
+        let v = if flat { dot(h, cross_axis) } else { dot(h, p.up) };
+        let (x, y) = frame.px(dot(h, p.axis), v);
+        dot_at(&mut img, x, y, 6, [20, 20, 20]);
+    }
+    save(&img, out, "error_map.png")?;
+    files.push(PlotFile {
+        file: "error_map.png".into(),
+        caption: format!(
+            "Error map: each tracked point at frame 0, seen {} (x: main axis, {:.0} mm wide), \
+             coloured by its mean test-split track error (blue 0 → red ≥ {:.1} mm). Black \
+             dots: hand anchors at frame 0.",
+            if flat { "from above" } else { "from the side" },
+            1e3 * extent(&along),
+            1e3 * emax
+        ),
+    });
+
+    // 3. Residual acceleration against velocity: the component along the
+    // velocity direction against the speed (drag / friction make a
+    // negative slope through the origin), and the horizontal residual
+    // (tilt makes an off-centre cloud).
+    let speeds: Vec<f64> = p.samples.iter().map(|s| norm(s.velocity)).collect();
+    let along_v: Vec<f64> = p
+        .samples
+        .iter()
+        .zip(&speeds)
+        .map(|(s, v)| if *v > 0.0 { dot(s.residual, s.velocity) / v } else { 0.0 })
+        .collect();
+    let amax = robust_abs_max(&along_v);
+    let vmax = robust_abs_max(&speeds);
+    let mut img = canvas(900, 420);
+    {
+        let left = Frame {
+            w: 450.0,
+            h: 420.0,
+            x: (0.0, vmax),
+            y: (-amax, amax),
+        };
+        line(&mut img, left.px(0.0, 0.0), left.px(vmax, 0.0), GREY);
+        line(&mut img, left.px(0.0, -amax), left.px(0.0, amax), GREY);
+        for (v, a) in speeds.iter().zip(&along_v) {
+            if *v <= vmax && a.abs() <= amax {
+                let (x, y) = left.px(*v, *a);
+                dot_at(&mut img, x, y, 1, BLUE);
+            }
+        }
+        // The fitted drag line r = −k v.
+        let k = p.diagnosis.signatures.drag_rate_per_s;
+        line(&mut img, left.px(0.0, 0.0), left.px(vmax, (-k * vmax).clamp(-amax, amax)), RED);
+    }
+    let (east, north) = crate::candidates::horizontal_basis(p.up);
+    let hx: Vec<f64> = p.samples.iter().map(|s| dot(s.residual, east)).collect();
+    let hy: Vec<f64> = p.samples.iter().map(|s| dot(s.residual, north)).collect();
+    let hmax = robust_abs_max(&hx).max(robust_abs_max(&hy));
+    {
+        let right = Frame {
+            w: 450.0,
+            h: 420.0,
+            x: (-hmax, hmax),
+            y: (-hmax, hmax),
+        };
+        let mut sub = canvas(450, 420);
+        line(&mut sub, right.px(-hmax, 0.0), right.px(hmax, 0.0), GREY);
+        line(&mut sub, right.px(0.0, -hmax), right.px(0.0, hmax), GREY);
+        for (x, y) in hx.iter().zip(&hy) {
+            if x.abs() <= hmax && y.abs() <= hmax {
+                let (px, py) = right.px(*x, *y);
+                dot_at(&mut sub, px, py, 1, BLUE);
+            }
+        }
+        let m = p.diagnosis.signatures.horizontal_accel;
+        let (mx, my) = right.px(dot(m, east), dot(m, north));
+        dot_at(&mut sub, mx, my, 6, RED);
+        image::imageops::overlay(&mut img, &sub, 450, 0);
+    }
+    save(&img, out, "residual_vs_velocity.png")?;
+    files.push(PlotFile {
+        file: "residual_vs_velocity.png".into(),
+        caption: format!(
+            "Residual accelerations (observed − simulated, second differences over ±{} frames). \
+             Left: component along the velocity (y: ±{:.2} m/s²) against speed (x: 0–{:.2} m/s); \
+             red: least-squares r = −k v (k = {:.2} /s) — drag or friction tilt the cloud \
+             downwards. Right: horizontal residual (x: world +x, y: world +y for +z up; \
+             ±{:.2} m/s²); red dot: its mean — a tilted gravity moves it off the centre.",
+            crate::analysis::ACCEL_STRIDE,
+            amax,
+            vmax,
+            p.diagnosis.signatures.drag_rate_per_s,
+            hmax
+        ),
+    });
+
+    // 4. Candidate scores (bars) with the threshold (grey line).
+    let cands = &p.diagnosis.candidates;
+    let mut img = canvas(640, 300);
+    let smax = cands
+        .iter()
+        .map(|c| c.score)
+        .fold(p.diagnosis.threshold * 1.5, f64::max)
+        .min(1.0);
+    let frame = Frame {
+        w: 640.0,
+        h: 300.0,
+        x: (0.0, cands.len().max(1) as f64),
+        y: (-smax.min(0.3), smax),
+    };
+    line(&mut img, frame.px(0.0, 0.0), frame.px(cands.len() as f64, 0.0), GREY);
+    let (tx0, ty) = frame.px(0.0, p.diagnosis.threshold);
+    let (tx1, _) = frame.px(cands.len() as f64, p.diagnosis.threshold);
+    for x in (tx0 as i64..tx1 as i64).step_by(4) {
+        dot_at(&mut img, x as f64, ty, 0, GREY);
+    }
+    for (i, c) in cands.iter().enumerate() {
+        let color = if c.name == p.diagnosis.cause { RED } else { BLUE };
+        let s = c.score.clamp(-smax.min(0.3), smax);
+        let (x0, y0) = frame.px(i as f64 + 0.15, 0.0);
+        let (x1, y1) = frame.px(i as f64 + 0.85, s);
+        for x in x0 as i64..=x1 as i64 {
+            for y in (y0.min(y1) as i64)..=(y0.max(y1) as i64) {
+                dot_at(&mut img, x as f64, y as f64, 0, color);
+            }
+        }
+    }
+    save(&img, out, "candidates.png")?;
+    files.push(PlotFile {
+        file: "candidates.png".into(),
+        caption: format!(
+            "Held-out score per candidate, in the table's order (bars; red: the named cause; \
+             y: {:.2} to {:.2}); dotted grey: the `none` threshold {:.2}.",
+            -smax.min(0.3),
+            smax,
+            p.diagnosis.threshold
+        ),
+    });
+
+    // 5. The learned residual's mean |Δv| per frame, if the model has one.
+    if !p.residual_dv.is_empty() {
+        let chart = line_chart(
+            &[ChartSeries {
+                values: p.residual_dv,
+                color: BLUE,
+            }],
+            &ChartOptions {
+                width: 640,
+                height: 240,
+                scale: ValueScale::Linear,
+                markers: vec![p.split.test[0]],
+            },
+        );
+        save(&chart, out, "residual_dv.png")?;
+        files.push(PlotFile {
+            file: "residual_dv.png".into(),
+            caption: format!(
+                "The learned residual's mean |Δv| per frame (y: up to {:.4} m/s).",
+                p.residual_dv.iter().copied().fold(0.0, f64::max)
+            ),
+        });
+    }
+    Ok(files)
+}

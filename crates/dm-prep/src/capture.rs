@@ -369,3 +369,62 @@ impl dm_synth::sensor::CaptureSink for SynthCaptureSink {
             .map_err(|e| dm_synth::SynthError::Capture(e.to_string()))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn calibration_json() -> serde_json::Value {
+        serde_json::json!({
+            "format": CAPTURE_FORMAT, "version": 1, "fps": 30.0, "frame_count": 3,
+            "depth_unit": "millimetres", "up_axis": "+z", "floor_height_m": 0.0,
+            "cameras": [{"name": "cam0", "width": 8, "height": 6, "fx": 10.0, "fy": 10.0,
+                "cx": 4.0, "cy": 3.0, "axes": "opencv",
+                "world_to_camera": [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
+                                    [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]]}]
+        })
+    }
+
+    fn open_with(json: &serde_json::Value) -> (tempfile::TempDir, Result<Capture, CaptureError>) {
+        let dir = tempfile::tempdir().expect("temp dir");
+        std::fs::write(dir.path().join(CALIBRATION_FILE), json.to_string()).expect("write");
+        let result = Capture::open(dir.path());
+        (dir, result)
+    }
+
+    #[test]
+    fn a_valid_calibration_opens() {
+        let (_dir, result) = open_with(&calibration_json());
+        assert_eq!(result.expect("opens").frame_count(), 3);
+    }
+
+    #[test]
+    fn bad_calibrations_name_the_file_and_field() {
+        let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>); 4] = [
+            ("cameras[0].fx", Box::new(|v| {
+                v["cameras"][0].as_object_mut().expect("object").remove("fx");
+            })),
+            ("fps", Box::new(|v| v["fps"] = serde_json::json!(-1.0))),
+            ("depth_unit", Box::new(|v| v["depth_unit"] = serde_json::json!("metres"))),
+            ("frame_count", Box::new(|v| {
+                v.as_object_mut().expect("object").remove("frame_count");
+            })),
+        ];
+        for (field, break_it) in cases {
+            let mut json = calibration_json();
+            break_it(&mut json);
+            let (_dir, result) = open_with(&json);
+            let message = result.expect_err("must fail").to_string();
+            assert!(message.contains(CALIBRATION_FILE), "{message}");
+            assert!(message.contains(&format!("field `{field}`")), "{message}");
+        }
+    }
+
+    #[test]
+    fn a_missing_depth_frame_names_its_file() {
+        let (dir, result) = open_with(&calibration_json());
+        let capture = result.expect("opens");
+        let message = capture.read_depth_m(0, 1).expect_err("no depth").to_string();
+        assert!(message.contains(&depth_path(dir.path(), "cam0", 1).display().to_string()), "{message}");
+    }
+}

@@ -160,6 +160,13 @@ pub fn track_points(
     options: &TrackOptions,
 ) -> opencv::Result<Tracks2d> {
     let n = queries.len();
+    if n == 0 {
+        // OpenCV refuses an empty point list; nothing to track.
+        return Ok(Tracks2d {
+            points: vec![Vec::new(); frames.len()],
+            alive: vec![Vec::new(); frames.len()],
+        });
+    }
     let mut points = vec![queries.to_vec()];
     let mut alive = vec![vec![true; n]];
     // OpenCV's LK works in pixel-corner coordinates (pixel centre = integer).
@@ -260,6 +267,9 @@ mod tests {
         let tracks = track_points(&frames, Some(&masks), &[[48.5, 40.5]], &TrackOptions::default())
             .expect("tracking");
         assert!(tracks.alive[0][0] && !tracks.alive[1][0]);
+        // No queries (a mask without texture): empty tracks, no OpenCV error.
+        let none = track_points(&frames, Some(&masks), &[], &TrackOptions::default()).expect("empty");
+        assert_eq!((none.points.len(), none.len()), (2, 0));
     }
 
     fn mask_full() -> GrayImage {

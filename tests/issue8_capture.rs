@@ -10,23 +10,22 @@ use dm_prep::score::score_tracks;
 use dm_prep::stages::{Prep, PrepOptions, Stage};
 use dm_synth::{Preset, SynthConfig};
 
-/// The issue's bound is 5 mm on full-size scenes (docs/RESULTS.md); this
-/// short, small scene (160×120, where a pixel is ~4 mm on the object)
-/// must stay within ISSUE8_SMALL_SCENE_LIMIT_M.
+/// The issue's bound is 5 mm on full-size scenes (docs/RESULTS.md: rope
+/// 3.5 mm, cloth 4.7 mm); this short scene with a coarse truth (3000
+/// particles, so larger splats and a sparser reference) must stay within
+/// ISSUE8_SMALL_SCENE_LIMIT_M.
 const ISSUE8_SMALL_SCENE_LIMIT_M: f64 = 0.008;
 
 #[test]
 fn issue8_capture_to_bundle_tracks_match_the_truth() {
     let dir = tempfile::tempdir().expect("temp dir");
     let config = SynthConfig {
-        frames: 12,
-        width: 160,
-        height: 120,
+        frames: 10,
         truth_particles: 3000,
         tracks: 1500,
         bundle_particles: 500,
         exact_tracks: true,
-        ..SynthConfig::new(Preset::Cloth, 3)
+        ..SynthConfig::new(Preset::Rope, 3)
     };
     let truth_bundle = dir.path().join("truth");
     let capture = dir.path().join("capture");
@@ -41,7 +40,7 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
     .expect("scene generates");
     sink.finish().expect("capture closes");
     assert!(capture.join("cam0/color.mp4").is_file());
-    assert!(capture.join("cam2/depth/00011.png").is_file());
+    assert!(capture.join("cam2/depth/00009.png").is_file());
     assert!(!capture.join("cam0/mask_object").exists());
 
     let work = dir.path().join("work");
@@ -51,8 +50,8 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
         .write_bundle(&out, false, &mut |_, _, _| {})
         .expect("bundle written");
     bundle.validate_images().expect("images valid");
-    assert_eq!(bundle.meta.category, dm_bundle::Category::Planar);
-    assert!(bundle.tracks.object_point_count() >= 200, "{}", bundle.tracks.object_point_count());
+    assert_eq!(bundle.meta.category, dm_bundle::Category::Linear);
+    assert!(bundle.tracks.object_point_count() >= 100, "{}", bundle.tracks.object_point_count());
 
     let score = score_tracks(&out, &truth_bundle).expect("scores");
     assert!(

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo test bench clean
+.PHONY: setup system-packages lpips build demo pipeline test bench clean
 
 # Everything the project needs beyond the Rust toolchain of the machine.
 setup: system-packages lpips
@@ -54,6 +54,25 @@ demo: build
 	@python3 -c 'import json; a=json.load(open("$(OUT)/model/appearance.json")); print("splats       : %d Gaussians, frame-0 PSNR train %.1f dB, held-out camera %.1f dB (%.0f s)" % (a["gaussian_count"], a["mean_train_psnr_db"], a["held_out_psnr_db"], a["fit_seconds"]))' || true
 	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
+
+# Capture to rendered model (issue 8): dm-prep's classical stages turn an
+# RGB-D capture directory (docs/capture.md) into a bundle, then a short fit
+# and a novel-view render. Without CAPTURE=DIR a synthetic capture is
+# written first (dm-synth --capture-out, PRESET/SEED). The monocular
+# VIDEO=clip.mp4 path needs the model stages of issue 8 (not here yet).
+PIPELINE_OUT ?= out/pipeline
+PIPELINE_FIT ?= $(DEMO_FIT)
+pipeline: build
+	@rm -rf $(PIPELINE_OUT) && mkdir -p $(PIPELINE_OUT)
+	@if [ -n "$(VIDEO)" ]; then echo "error: VIDEO= (monocular) needs issue 8's model stages; use CAPTURE=DIR" >&2; exit 1; fi
+	@if [ -z "$(CAPTURE)" ]; then \
+	  ./target/release/dm-synth --preset $(PRESET) --seed $(SEED) --exact-tracks --tracks 3000 \
+	    --out $(PIPELINE_OUT)/truth --capture-out $(PIPELINE_OUT)/capture; fi
+	./target/release/dm-prep all --capture $(if $(CAPTURE),$(CAPTURE),$(PIPELINE_OUT)/capture) --out $(PIPELINE_OUT)/scene
+	@if [ -z "$(CAPTURE)" ]; then ./target/release/dm-prep score $(PIPELINE_OUT)/scene --reference $(PIPELINE_OUT)/truth; fi
+	./target/release/dm-fit $(PIPELINE_OUT)/scene --out $(PIPELINE_OUT)/model $(PIPELINE_FIT)
+	./target/release/dm-render $(PIPELINE_OUT)/model --bundle $(PIPELINE_OUT)/scene --view novel --out $(PIPELINE_OUT)/render
+	@echo "bundle: $(PIPELINE_OUT)/scene  model: $(PIPELINE_OUT)/model  video: $(PIPELINE_OUT)/render/render.mp4"
 
 # LPIPS for dm-eval, offline at run time: a Python venv with the pinned
 # onnxruntime (its shared library is what dm-eval loads), the AlexNet weights

@@ -1,12 +1,25 @@
 //! Preprocessing into scene bundles (`docs/bundle.md`).
 //!
-//! Today: importing a PhysTwin case directory (method.md §10) with
+//! Importing a PhysTwin case directory (method.md §10) with
 //! [`import_phystwin`]. PhysTwin stores its tracks and calibration as Python
 //! pickles of numpy arrays; [`pickle`] reads them without Python.
+//!
+//! Preparing a multi-view RGB-D capture ([`capture`], docs/capture.md)
+//! with classical fallbacks that need no model weights: [`segment`],
+//! [`track2d`], [`lift`], [`fill`], run and cached by [`stages`]; [`score`]
+//! compares the resulting tracks with a reference bundle's.
 
+pub mod capture;
+pub mod fill;
+pub mod lift;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
+pub mod score;
+pub mod segment;
+pub mod stages;
+pub mod track2d;
+pub mod video;
 
 pub use ndarray_raw::{ArrayData, ByteOrder, Element, NdArray};
 pub use phystwin::{ImportOptions, ImportSummary, MaskSource, import_phystwin, read_pickle_file};

@@ -33,6 +33,8 @@ pub enum SynthError {
     Simulation(#[from] dm_mpm::SimError),
     #[error(transparent)]
     Bundle(#[from] dm_bundle::BundleError),
+    #[error("writing the capture: {0}")]
+    Capture(String),
     #[error("{path}: {source}")]
     Io {
         path: PathBuf,
@@ -80,6 +82,11 @@ pub struct SynthConfig {
     /// First-frame particles written to the bundle (what dm-prep would fill).
     #[arg(long, default_value_t = 8_000)]
     pub bundle_particles: usize,
+    /// Write the exact truth as the bundle's object tracks (no tracker
+    /// noise, bias or dropout): a reference for scoring a capture's tracks.
+    #[arg(long)]
+    #[serde(default)]
+    pub exact_tracks: bool,
 }
 
 impl SynthConfig {
@@ -98,6 +105,7 @@ impl SynthConfig {
             truth_particles: 16_000,
             tracks: 400,
             bundle_particles: 8_000,
+            exact_tracks: false,
         }
     }
 
@@ -185,9 +193,20 @@ pub fn generate(
     truth_path: &std::path::Path,
     progress: Progress<'_>,
 ) -> Result<TruthFile, SynthError> {
+    generate_with_capture(config, out, truth_path, None, progress)
+}
+
+/// [`generate`], also handing the raw capture (colour, depth) to `capture`.
+pub fn generate_with_capture(
+    config: &SynthConfig,
+    out: &std::path::Path,
+    truth_path: &std::path::Path,
+    capture: Option<&mut dyn sensor::CaptureSink>,
+    progress: Progress<'_>,
+) -> Result<TruthFile, SynthError> {
     config.validate()?;
     let truth = simulate_truth(config, progress)?;
-    sensor::write_bundle(config, &truth, out, progress)?;
+    sensor::write_bundle(config, &truth, out, capture, progress)?;
     let record = truth.truth_file(config);
     dm_bundle::write_json_atomic(truth_path, &record)?;
     Ok(record)

@@ -176,14 +176,38 @@ fn measured_depth(
     out
 }
 
-/// Renders every camera and frame and writes the bundle.
+/// Receives the raw capture while the bundle is rendered: what the rig's
+/// cameras record (noisy colour, measured depth), nothing else. dm-synth's
+/// tool writes it as a capture directory with `dm_prep::capture`.
+pub trait CaptureSink {
+    /// Called once before any frame, with the bundle's metadata (cameras,
+    /// frame rate, frame count, up axis, floor).
+    fn start(&mut self, meta: &BundleMeta) -> Result<(), SynthError>;
+    /// Colour and depth (metres, NaN = no measurement) of one camera and frame.
+    fn frame(
+        &mut self,
+        camera: usize,
+        frame: usize,
+        rgb: &image::RgbImage,
+        depth_m: &[f32],
+    ) -> Result<(), SynthError>;
+}
+
+/// Renders every camera and frame and writes the bundle (and the raw
+/// capture to `capture`, when given).
 pub fn write_bundle(
     config: &SynthConfig,
     truth: &GroundTruth,
     out: &std::path::Path,
+    mut capture: Option<&mut dyn CaptureSink>,
     progress: Progress<'_>,
 ) -> Result<(), SynthError> {
-    let noise = SensorNoise::default();
+    let mut noise = SensorNoise::default();
+    if config.exact_tracks {
+        noise.track_sigma = 0.0;
+        noise.track_bias_sigma = 0.0;
+        noise.track_dropout = 0.0;
+    }
     let frames = truth.frames.len();
     let cameras = rig(truth, config.width, config.height, config.seed);
     let specs: Vec<CameraSpec> = cameras
@@ -211,6 +235,9 @@ pub fn write_bundle(
             }
         })
         .collect();
+    if let Some(sink) = capture.as_deref_mut() {
+        sink.start(&meta)?;
+    }
     let mut writer = BundleWriter::create(out, meta)?;
 
     // Object splats: surface particles coloured by the texture at rest.
@@ -225,14 +252,32 @@ pub fn write_bundle(
     let options = RenderOptions::studio([0.0, 0.0, 1.0], 0.0);
 
     // Tracked points: farthest-point samples of the surface at frame 0.
-    let surface_rest: Vec<[f64; 3]> = surface
+    // Exact tracks follow points on the rendered skin instead (see
+    // `skin_tracks`), sampled among particles whose skin point is visible
+    // from outside.
+    let (candidates, skin) = if config.exact_tracks {
+        let (ids, offsets) = outer_skin(truth, radius);
+        (ids, Some(offsets))
+    } else {
+        (surface.clone(), None)
+    };
+    let candidate_rest: Vec<[f64; 3]> = candidates
         .iter()
         .map(|&i| truth.frames[0][i].map(f64::from))
         .collect();
-    let tracked: Vec<usize> = farthest_point_sampling(&surface_rest, config.tracks)
-        .into_iter()
-        .map(|s| surface[s])
-        .collect();
+    let chosen = farthest_point_sampling(&candidate_rest, config.tracks);
+    let tracked: Vec<usize> = chosen.iter().map(|&s| candidates[s]).collect();
+    let track_positions: Vec<Vec<[f64; 3]>> = match &skin {
+        Some(offsets) => {
+            let offsets: Vec<[f64; 3]> = chosen.iter().map(|&s| offsets[s]).collect();
+            skin_tracks(truth, &tracked, &offsets)
+        }
+        None => truth
+            .frames
+            .iter()
+            .map(|frame| tracked.iter().map(|&i| frame[i].map(f64::from)).collect())
+            .collect(),
+    };
     let n_tracks = tracked.len();
     let mut visible_any = Array2::<bool>::from_elem((frames, n_tracks), false);
 
@@ -252,8 +297,7 @@ pub fn write_bundle(
         splats.extend(hand_splats(&truth.anchors[t], &truth.hands));
         for (c, camera) in cameras.iter().enumerate() {
             let mut frame = render(camera, &splats, &options);
-            for (k, &i) in tracked.iter().enumerate() {
-                let p = truth.frames[t][i].map(f64::from);
+            for (k, p) in track_positions[t].iter().enumerate() {
                 if frame.is_unoccluded(camera, &Point3::new(p[0], p[1], p[2]), visibility_tolerance)
                 {
                     visible_any[[t, k]] = true;
@@ -267,14 +311,18 @@ pub fn write_bundle(
                 noise.rgb_noise,
                 splitmix(config.seed ^ ((t * 8 + c) as u64)),
             );
-            writer.write_frame_images(c, t, &frame.to_rgb8(), &depth, &object_mask, &hand_mask)?;
+            let rgb = frame.to_rgb8();
+            if let Some(sink) = capture.as_deref_mut() {
+                sink.frame(c, t, &rgb, &depth)?;
+            }
+            writer.write_frame_images(c, t, &rgb, &depth, &object_mask, &hand_mask)?;
         }
         progress("rendering", t + 1, frames);
     }
 
     writer.write_tracks(&observed_tracks(
         truth,
-        &tracked,
+        &track_positions,
         &visible_any,
         &noise,
         &mut rng,
@@ -289,13 +337,13 @@ pub fn write_bundle(
 /// point is not visible the last observation is held.
 fn observed_tracks(
     truth: &GroundTruth,
-    tracked: &[usize],
+    track_positions: &[Vec<[f64; 3]>],
     visible_any: &Array2<bool>,
     noise: &SensorNoise,
     rng: &mut ChaCha8Rng,
 ) -> Tracks {
     let frames = truth.frames.len();
-    let n = tracked.len();
+    let n = track_positions[0].len();
     let unit = Normal::new(0.0, 1.0).expect("unit normal is valid");
     let bias: Vec<[f64; 3]> = (0..n)
         .map(|_| [0, 1, 2].map(|_| noise.track_bias_sigma * unit.sample(rng)))
@@ -305,10 +353,10 @@ fn observed_tracks(
     let mut motion_valid = Array2::<bool>::from_elem((frames, n), false);
     for t in 0..frames {
         for k in 0..n {
-            let truth_p = truth.frames[t][tracked[k]];
+            let truth_p = track_positions[t][k];
             let seen = visible_any[[t, k]] && rng.random::<f64>() >= noise.track_dropout;
             let measured: [f64; 3] = [0, 1, 2]
-                .map(|a| f64::from(truth_p[a]) + bias[k][a] + noise.track_sigma * unit.sample(rng));
+                .map(|a| truth_p[a] + bias[k][a] + noise.track_sigma * unit.sample(rng));
             let value = if seen || t == 0 {
                 measured
             } else {
@@ -390,4 +438,102 @@ fn first_frame_particles(
         interior_points,
         interior_colors,
     }
+}
+
+/// Surface particles whose skin point (centre + splat radius along the
+/// rest shape's outward normal) lies on the rendered surface — outside
+/// every other splat — with that offset.
+fn outer_skin(truth: &GroundTruth, radius: f32) -> (Vec<usize>, Vec<[f64; 3]>) {
+    let rest = &truth.cloud.positions;
+    let index = dm_mpm::neighbors::PointIndex::new(rest);
+    let r = f64::from(radius);
+    let h = 1e-4;
+    let mut ids = Vec::new();
+    let mut offsets = Vec::new();
+    for i in (0..rest.len()).filter(|&i| truth.cloud.on_surface[i]) {
+        let p = rest[i];
+        let gradient: [f64; 3] = std::array::from_fn(|a| {
+            let (mut plus, mut minus) = (p, p);
+            plus[a] += h;
+            minus[a] -= h;
+            (truth.preset.sdf(plus) - truth.preset.sdf(minus)) / (2.0 * h)
+        });
+        let norm = (gradient[0].powi(2) + gradient[1].powi(2) + gradient[2].powi(2)).sqrt();
+        if norm < 1e-9 {
+            continue;
+        }
+        let offset = gradient.map(|g| r * g / norm);
+        let skin = [0, 1, 2].map(|a| p[a] + offset[a]);
+        let covered = index
+            .within(&skin, 0.98 * r)
+            .iter()
+            .any(|&(j, _)| j != i);
+        if !covered {
+            ids.push(i);
+            offsets.push(offset);
+        }
+    }
+    (ids, offsets)
+}
+
+/// Neighbours whose rigid fit carries a skin offset along.
+const SKIN_NEIGHBOURS: usize = 12;
+
+/// Positions over the clip of skin points `x_i + R_i(t) o_i`, with
+/// `R_i(t)` the rotation of the best rigid fit (Kabsch) of the particle's
+/// rest neighbourhood to frame t: the offset turns with the material
+/// around it, so the point stays on its splat's surface.
+fn skin_tracks(truth: &GroundTruth, tracked: &[usize], offsets: &[[f64; 3]]) -> Vec<Vec<[f64; 3]>> {
+    use nalgebra::Matrix3;
+    let rest = &truth.cloud.positions;
+    let index = dm_mpm::neighbors::PointIndex::new(rest);
+    let neighbours: Vec<Vec<usize>> = tracked
+        .iter()
+        .map(|&i| {
+            index
+                .nearest(&rest[i], SKIN_NEIGHBOURS)
+                .into_iter()
+                .map(|(j, _)| j)
+                .collect()
+        })
+        .collect();
+    truth
+        .frames
+        .iter()
+        .map(|frame| {
+            tracked
+                .iter()
+                .zip(&neighbours)
+                .zip(offsets)
+                .map(|((&i, ns), o)| {
+                    let n = ns.len() as f64;
+                    let centre = |pts: &dyn Fn(usize) -> Vector3<f64>| {
+                        ns.iter().map(|&j| pts(j)).sum::<Vector3<f64>>() / n
+                    };
+                    let at_rest = |j: usize| Vector3::from(rest[j]);
+                    let now = |j: usize| Vector3::from(frame[j].map(f64::from));
+                    let (c0, c1) = (centre(&at_rest), centre(&now));
+                    let h: Matrix3<f64> = ns
+                        .iter()
+                        .map(|&j| (at_rest(j) - c0) * (now(j) - c1).transpose())
+                        .sum();
+                    let svd = h.svd(true, true);
+                    let rotation = match (svd.u, svd.v_t) {
+                        (Some(u), Some(v_t)) => {
+                            let mut r = v_t.transpose() * u.transpose();
+                            if r.determinant() < 0.0 {
+                                let mut v = v_t.transpose();
+                                v.column_mut(2).neg_mut();
+                                r = v * u.transpose();
+                            }
+                            r
+                        }
+                        _ => Matrix3::identity(),
+                    };
+                    let skin = now(i) + rotation * Vector3::from(*o);
+                    [skin.x, skin.y, skin.z]
+                })
+                .collect()
+        })
+        .collect()
 }

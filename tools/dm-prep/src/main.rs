@@ -1,7 +1,10 @@
 //! `dm-prep`: turns captures into scene bundles (docs/bundle.md).
 //!
 //! One subcommand per source format; `import-phystwin` reads a PhysTwin case
-//! directory (method.md §10).
+//! directory (method.md §10). A multi-view RGB-D capture (docs/capture.md)
+//! goes through the stages `segment`, `depth`, `track`, `lift`, `fill`
+//! (each cached under the work directory) or `all`, which also writes the
+//! bundle; `score` compares a bundle's tracks with a reference bundle's.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -9,6 +12,9 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
+use dm_prep::score::score_tracks;
+use dm_prep::stages::{Prep, PrepOptions, Stage, StageOutcome};
+use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser, Debug)]
 #[command(name = "dm-prep", version, about = "Turn captures into scene bundles")]
@@ -22,6 +28,69 @@ enum Command {
     /// Import a PhysTwin case directory (final_data.pkl, calibrate.pkl,
     /// metadata.json, split.json, color/, depth/, optional mask/).
     ImportPhystwin(ImportPhystwinArgs),
+    /// Object and hand masks of a capture (depth/colour model + GrabCut).
+    Segment(StageArgs),
+    /// Sensor depth of a capture, checked and cached.
+    Depth(StageArgs),
+    /// 2D tracks per camera (Lucas-Kanade with a forward-backward check).
+    Track(StageArgs),
+    /// 3D object and hand tracks (depth + calibration, multi-view fusion).
+    Lift(StageArgs),
+    /// First-frame particles (surface, interior or sheet).
+    Fill(StageArgs),
+    /// Every stage, then the scene bundle at --out.
+    All(AllArgs),
+    /// Median 3D track error of BUNDLE against --reference.
+    Score(ScoreArgs),
+}
+
+#[derive(Args, Debug)]
+struct StageArgs {
+    /// The capture directory (calibration.json, <camera>/color.mp4, <camera>/depth/).
+    #[arg(long)]
+    capture: PathBuf,
+    /// Where stage outputs are cached (default: <out>.work, or <capture>.work).
+    #[arg(long)]
+    work: Option<PathBuf>,
+    /// The bundle the stages prepare (names the default work directory).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Object category (default: inferred from the first-frame points).
+    #[arg(long, value_enum)]
+    category: Option<CategoryArg>,
+    /// Hand (skin or glove) colour as R,G,B in [0, 1].
+    #[arg(long, value_parser = parse_color)]
+    hand_color: Option<[f32; 3]>,
+}
+
+#[derive(Args, Debug)]
+struct AllArgs {
+    #[command(flatten)]
+    stage: StageArgs,
+    /// Replace an existing bundle at --out once the new one is complete.
+    #[arg(long)]
+    overwrite: bool,
+}
+
+#[derive(Args, Debug)]
+struct ScoreArgs {
+    /// The prepared bundle.
+    bundle: PathBuf,
+    /// The reference bundle (e.g. dm-synth --exact-tracks).
+    #[arg(long)]
+    reference: PathBuf,
+}
+
+fn parse_color(s: &str) -> Result<[f32; 3], String> {
+    let values: Vec<f32> = s
+        .split(',')
+        .map(|v| v.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("`{s}`: {e}"))?;
+    match values[..] {
+        [r, g, b] if [r, g, b].iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),
+        _ => Err(format!("`{s}` is not R,G,B with each in [0, 1]")),
+    }
 }
 
 #[derive(Args, Debug)]
@@ -94,10 +163,131 @@ fn import_phystwin_command(args: &ImportPhystwinArgs) -> Result<()> {
     Ok(())
 }
 
+fn prep_for(args: &StageArgs) -> Result<Prep> {
+    let work = args.work.clone().unwrap_or_else(|| {
+        let base = args.out.as_ref().unwrap_or(&args.capture);
+        let mut name = base.file_name().unwrap_or_default().to_os_string();
+        name.push(".work");
+        base.with_file_name(name)
+    });
+    let mut options = PrepOptions {
+        category: args.category.map(Into::into),
+        ..PrepOptions::default()
+    };
+    if let Some(color) = args.hand_color {
+        options.segment.hand_color = color;
+    }
+    Prep::new(&args.capture, &work, options)
+        .with_context(|| format!("opening capture {}", args.capture.display()))
+}
+
+fn progress_bar() -> Result<ProgressBar> {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} {elapsed}")
+            .context("progress template")?
+            .progress_chars("=> "),
+    );
+    Ok(bar)
+}
+
+fn report(outcomes: &[StageOutcome]) {
+    for o in outcomes {
+        if o.ran {
+            println!("stage {}: ran in {:.1} s", o.stage.name(), o.seconds);
+        } else {
+            println!("stage {}: up to date (cached)", o.stage.name());
+        }
+    }
+}
+
+fn stage_command(stage: Stage, args: &StageArgs) -> Result<()> {
+    let prep = prep_for(args)?;
+    let bar = progress_bar()?;
+    let mut progress = |name: &str, done: usize, total: usize| {
+        if bar.message() != name {
+            bar.set_message(name.to_string());
+            bar.set_length(total as u64);
+        }
+        bar.set_position(done as u64);
+    };
+    let outcomes = prep
+        .run(stage, &mut progress)
+        .with_context(|| format!("stage {} on {}", stage.name(), args.capture.display()))?;
+    bar.finish_and_clear();
+    report(&outcomes);
+    println!("work directory {}", prep.work.display());
+    Ok(())
+}
+
+fn all_command(args: &AllArgs) -> Result<()> {
+    let out = args
+        .stage
+        .out
+        .clone()
+        .context("`all` needs --out BUNDLE")?;
+    let prep = prep_for(&args.stage)?;
+    let bar = progress_bar()?;
+    let mut progress = |name: &str, done: usize, total: usize| {
+        if bar.message() != name {
+            bar.set_message(name.to_string());
+            bar.set_length(total as u64);
+        }
+        bar.set_position(done as u64);
+    };
+    let start = std::time::Instant::now();
+    let bundle = prep
+        .write_bundle(&out, args.overwrite, &mut progress)
+        .with_context(|| format!("preparing {} into {}", args.stage.capture.display(), out.display()))?;
+    bar.finish_and_clear();
+    for stage in Stage::ALL {
+        if let Some(seconds) = prep.recorded_seconds(stage) {
+            println!("stage {}: {:.1} s (when it last ran)", stage.name(), seconds);
+        }
+    }
+    println!(
+        "wrote {}: {} frames, {} cameras, {} object tracks, {} hand anchors in {} hands, {} + {} particles, category {:?} ({:.1} s)",
+        out.display(),
+        bundle.meta.frame_count,
+        bundle.meta.cameras.len(),
+        bundle.tracks.object_point_count(),
+        bundle.tracks.hand_anchor_count(),
+        bundle.meta.hands.len(),
+        bundle.particles.surface_points.nrows(),
+        bundle.particles.interior_points.nrows(),
+        bundle.meta.category,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn score_command(args: &ScoreArgs) -> Result<()> {
+    let score = score_tracks(&args.bundle, &args.reference).with_context(|| {
+        format!(
+            "scoring {} against {}",
+            args.bundle.display(),
+            args.reference.display()
+        )
+    })?;
+    println!("track_error_median_m {:.6}", score.median_m);
+    println!("track_error_mean_m {:.6}", score.mean_m);
+    println!("track_error_p90_m {:.6}", score.p90_m);
+    println!("frame0_match_median_m {:.6}", score.match_median_m);
+    println!("scored_entries {} tracks {}", score.entries, score.tracks);
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::ImportPhystwin(args) => import_phystwin_command(args),
+        Command::Segment(args) => stage_command(Stage::Segment, args),
+        Command::Depth(args) => stage_command(Stage::Depth, args),
+        Command::Track(args) => stage_command(Stage::Track, args),
+        Command::Lift(args) => stage_command(Stage::Lift, args),
+        Command::Fill(args) => stage_command(Stage::Fill, args),
+        Command::All(args) => all_command(args),
+        Command::Score(args) => score_command(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,7 +3,9 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_synth::{SynthConfig, generate};
+use dm_prep::capture::SynthCaptureSink;
+use dm_synth::sensor::CaptureSink;
+use dm_synth::{SynthConfig, generate_with_capture};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
@@ -21,6 +23,11 @@ struct Cli {
     /// Ground-truth JSON (default: OUT.truth.json, beside the bundle).
     #[arg(long)]
     truth: Option<PathBuf>,
+    /// Also write the raw capture the rig records (per-camera colour MP4,
+    /// millimetre depth PNGs, calibration.json; docs/capture.md) to this
+    /// directory, which must not exist.
+    #[arg(long)]
+    capture_out: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -43,8 +50,18 @@ fn main() -> Result<()> {
         }
         bar.set_position(done as u64);
     };
-    let truth = generate(&cli.config, &cli.out, &truth_path, &mut report)
-        .with_context(|| format!("generating scene into {}", cli.out.display()))?;
+    let mut capture = cli.capture_out.as_deref().map(SynthCaptureSink::new);
+    let truth = generate_with_capture(
+        &cli.config,
+        &cli.out,
+        &truth_path,
+        capture.as_mut().map(|c| c as &mut dyn CaptureSink),
+        &mut report,
+    )
+    .with_context(|| format!("generating scene into {}", cli.out.display()))?;
+    if let Some(capture) = capture {
+        capture.finish().context("closing the capture")?;
+    }
     bar.finish_and_clear();
     println!(
         "wrote {} ({} preset, action {}, effect {}) and truth {}",
@@ -54,5 +71,8 @@ fn main() -> Result<()> {
         truth.effect.as_ref().map_or("none", |e| e.name.as_str()),
         truth_path.display()
     );
+    if let Some(dir) = &cli.capture_out {
+        println!("wrote capture {}", dir.display());
+    }
     Ok(())
 }

@@ -1,0 +1,309 @@
+//! 2D tracks + depth + calibration → 3D tracks. Each camera's tracks are
+//! lifted with a robust depth (the median of the valid depths of a small
+//! window on the track's own mask, so a window across an edge takes no
+//! floor or hand depth); tracks of different cameras that follow the same
+//! material point are fused (averaged where both see it) and duplicates
+//! dropped.
+
+use dm_view::Camera;
+use image::GrayImage;
+use dm_mpm::neighbors::PointIndex;
+
+use crate::track2d::Tracks2d;
+
+/// Settings of the lift and fusion.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LiftOptions {
+    /// Half size of the depth window (pixels): (2r+1)² samples.
+    pub depth_window_radius: u32,
+    /// Fewest valid depth samples in the window.
+    pub min_depth_samples: usize,
+    /// Largest spread (m) between the window's median and its samples
+    /// that still counts (outliers beyond it are dropped before the median).
+    pub depth_spread_m: f32,
+    /// Tracks of two cameras closer than this at frame 0 (m) are candidates
+    /// for fusion.
+    pub fuse_radius_m: f64,
+    /// ...and are fused when their median distance over the frames both
+    /// see stays below this (m).
+    pub fuse_agreement_m: f64,
+}
+
+impl Default for LiftOptions {
+    fn default() -> Self {
+        Self {
+            depth_window_radius: 2,
+            min_depth_samples: 5,
+            depth_spread_m: 0.01,
+            fuse_radius_m: 0.003,
+            fuse_agreement_m: 0.004,
+        }
+    }
+}
+
+/// 3D tracks: `points[t][n]` world metres, `valid[t][n]`.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Tracks3d {
+    pub points: Vec<Vec<[f64; 3]>>,
+    pub valid: Vec<Vec<bool>>,
+}
+
+impl Tracks3d {
+    pub fn len(&self) -> usize {
+        self.points.first().map_or(0, Vec::len)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn column(&self, n: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
+        (
+            self.points.iter().map(|row| row[n]).collect(),
+            self.valid.iter().map(|row| row[n]).collect(),
+        )
+    }
+}
+
+/// Robust depth (m) at pixel `(u, v)` of `depth_m` over `mask`.
+pub fn window_depth(
+    depth_m: &[f32],
+    width: u32,
+    height: u32,
+    mask: Option<&GrayImage>,
+    u: f32,
+    v: f32,
+    options: &LiftOptions,
+) -> Option<f32> {
+    let (cx, cy) = (u.floor() as i64, v.floor() as i64);
+    let r = i64::from(options.depth_window_radius);
+    let mut samples = Vec::with_capacity(((2 * r + 1) * (2 * r + 1)) as usize);
+    for y in cy - r..=cy + r {
+        for x in cx - r..=cx + r {
+            if x < 0 || y < 0 || x >= i64::from(width) || y >= i64::from(height) {
+                continue;
+            }
+            if let Some(mask) = mask
+                && mask.get_pixel(x as u32, y as u32).0[0] == 0
+            {
+                continue;
+            }
+            let d = depth_m[(y as usize) * width as usize + x as usize];
+            if d.is_finite() && d > 0.0 {
+                samples.push(d);
+            }
+        }
+    }
+    if samples.len() < options.min_depth_samples {
+        return None;
+    }
+    samples.sort_by(f32::total_cmp);
+    let median = samples[samples.len() / 2];
+    let kept: Vec<f32> = samples
+        .into_iter()
+        .filter(|d| (d - median).abs() <= options.depth_spread_m)
+        .collect();
+    if kept.len() < options.min_depth_samples {
+        return None;
+    }
+    Some(kept[kept.len() / 2])
+}
+
+/// Lifts one camera's 2D tracks: `depth[t]` (m, row-major, NaN = none) and
+/// `masks[t]` the mask the tracks live on.
+pub fn lift_camera(
+    camera: &Camera,
+    tracks: &Tracks2d,
+    depth: &[Vec<f32>],
+    masks: &[GrayImage],
+    options: &LiftOptions,
+) -> Tracks3d {
+    let frames = tracks.points.len();
+    let n = tracks.len();
+    let mut out = Tracks3d {
+        points: vec![vec![[0.0; 3]; n]; frames],
+        valid: vec![vec![false; n]; frames],
+    };
+    for t in 0..frames {
+        for k in 0..n {
+            if !tracks.alive[t][k] {
+                continue;
+            }
+            let [u, v] = tracks.points[t][k];
+            if let Some(d) = window_depth(
+                &depth[t],
+                camera.width,
+                camera.height,
+                Some(&masks[t]),
+                u,
+                v,
+                options,
+            ) {
+                let p = camera.unproject(f64::from(u), f64::from(v), f64::from(d));
+                out.points[t][k] = [p.x, p.y, p.z];
+                out.valid[t][k] = true;
+            }
+        }
+    }
+    out
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Fuses the tracks of several cameras: only tracks valid at frame 0 are
+/// kept; a track of a later camera that follows an earlier kept track
+/// (close at frame 0, median distance over common frames small) is
+/// averaged into it instead of being added.
+pub fn fuse_cameras(per_camera: &[Tracks3d], options: &LiftOptions) -> Tracks3d {
+    let frames = per_camera.iter().map(|t| t.points.len()).max().unwrap_or(0);
+    // Fused tracks: sum of positions and count per frame.
+    let mut sums: Vec<Vec<[f64; 3]>> = Vec::new();
+    let mut counts: Vec<Vec<u32>> = Vec::new();
+    let mut first_points: Vec<[f64; 3]> = Vec::new();
+    for tracks in per_camera {
+        // Tracks of one camera never fuse with each other: the index holds
+        // the earlier cameras' tracks only.
+        let index = PointIndex::new(&first_points);
+        let mut additions = Vec::new();
+        for k in 0..tracks.len() {
+            let (points, valid) = tracks.column(k);
+            if !valid[0] {
+                continue;
+            }
+            let mut best: Option<(usize, f64)> = None;
+            for (j, _) in index.within(&points[0], options.fuse_radius_m) {
+                let mut ds: Vec<f64> = (0..frames)
+                    .filter(|&t| valid[t] && counts[j][t] > 0)
+                    .map(|t| {
+                        let mean = sums[j][t].map(|s| s / f64::from(counts[j][t]));
+                        distance(mean, points[t])
+                    })
+                    .collect();
+                ds.sort_by(f64::total_cmp);
+                let agreement = ds[ds.len() / 2];
+                if agreement <= options.fuse_agreement_m && best.is_none_or(|b| agreement < b.1) {
+                    best = Some((j, agreement));
+                }
+            }
+            match best {
+                Some((j, _)) => {
+                    for t in 0..frames {
+                        if valid[t] {
+                            for a in 0..3 {
+                                sums[j][t][a] += points[t][a];
+                            }
+                            counts[j][t] += 1;
+                        }
+                    }
+                }
+                None => additions.push((points, valid)),
+            }
+        }
+        for (points, valid) in additions {
+            first_points.push(points[0]);
+            sums.push(
+                (0..frames)
+                    .map(|t| if valid[t] { points[t] } else { [0.0; 3] })
+                    .collect(),
+            );
+            counts.push(valid.iter().map(|&v| u32::from(v)).collect());
+        }
+    }
+    let n = sums.len();
+    let mut out = Tracks3d {
+        points: vec![vec![[0.0; 3]; n]; frames],
+        valid: vec![vec![false; n]; frames],
+    };
+    for j in 0..n {
+        for t in 0..frames {
+            if counts[j][t] > 0 {
+                out.points[t][j] = sums[j][t].map(|s| s / f64::from(counts[j][t]));
+                out.valid[t][j] = true;
+            }
+        }
+    }
+    out
+}
+
+/// Fills frames where a track is not valid with its last valid position
+/// (the bundle needs finite values everywhere; validity says which count).
+pub fn hold_last(tracks: &mut Tracks3d) {
+    for t in 1..tracks.points.len() {
+        for k in 0..tracks.len() {
+            if !tracks.valid[t][k] {
+                tracks.points[t][k] = tracks.points[t - 1][k];
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point3, Vector3};
+
+    fn camera() -> Camera {
+        Camera::look_at(
+            Point3::new(0.3, -0.4, 0.5),
+            Point3::new(0.0, 0.0, 0.05),
+            Vector3::z(),
+            80,
+            60,
+            50.0,
+        )
+    }
+
+    #[test]
+    fn lift_of_a_known_pixel_and_depth_gives_the_known_point() {
+        let camera = camera();
+        let point = Point3::new(0.02, -0.01, 0.04);
+        let (u, v, z) = camera.project(&point).expect("in front");
+        let depth = vec![vec![z as f32; 80 * 60]];
+        let masks = vec![GrayImage::from_pixel(80, 60, image::Luma([255]))];
+        let tracks = Tracks2d {
+            points: vec![vec![[u as f32, v as f32]]],
+            alive: vec![vec![true]],
+        };
+        let lifted = lift_camera(&camera, &tracks, &depth, &masks, &LiftOptions::default());
+        assert!(lifted.valid[0][0]);
+        let p = lifted.points[0][0];
+        // f32 pixel coordinates and depth: ~1e-7 relative of 0.7 m.
+        assert!(distance(p, [point.x, point.y, point.z]) < 1e-5, "{p:?}");
+    }
+
+    #[test]
+    fn window_depth_ignores_other_masks_and_outliers() {
+        let (w, h) = (9u32, 9u32);
+        let mut depth = vec![0.5f32; 81];
+        let mut mask = GrayImage::from_pixel(w, h, image::Luma([255]));
+        for y in 0..9 {
+            for x in 5..9 {
+                depth[y * 9 + x] = 0.9; // the floor, beside the object
+                mask.put_pixel(x as u32, y as u32, image::Luma([0]));
+            }
+        }
+        depth[4 * 9 + 3] = f32::NAN;
+        let options = LiftOptions::default();
+        let d = window_depth(&depth, w, h, Some(&mask), 4.5, 4.5, &options).expect("depth");
+        assert_eq!(d, 0.5);
+        assert!(window_depth(&depth, w, h, Some(&GrayImage::new(w, h)), 4.5, 4.5, &options).is_none());
+    }
+
+    #[test]
+    fn fusion_averages_the_same_point_seen_twice_and_keeps_others() {
+        let a = Tracks3d {
+            points: vec![vec![[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], vec![[0.0, 0.0, 0.01], [0.1, 0.0, 0.01]]],
+            valid: vec![vec![true, true], vec![true, true]],
+        };
+        let b = Tracks3d {
+            points: vec![vec![[0.001, 0.0, 0.0], [0.5, 0.0, 0.0]], vec![[0.001, 0.0, 0.01], [0.5, 0.0, 0.0]]],
+            valid: vec![vec![true, true], vec![true, false]],
+        };
+        let fused = fuse_cameras(&[a, b], &LiftOptions::default());
+        assert_eq!(fused.len(), 3);
+        assert!(distance(fused.points[1][0], [0.0005, 0.0, 0.01]) < 1e-12);
+        assert!(fused.valid[0][2] && !fused.valid[1][2]);
+    }
+}

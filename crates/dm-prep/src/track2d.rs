@@ -1,0 +1,278 @@
+//! Dense 2D tracks without learned weights: farthest-point queries on the
+//! first mask (among pixels with texture enough to track), followed frame
+//! to frame by OpenCV's pyramidal Lucas–Kanade with a forward–backward
+//! check. A track that fails the check or leaves its mask is lost for the
+//! rest of the clip (it never jumps to another surface).
+
+use image::{GrayImage, RgbImage};
+use opencv::core::{Mat, Point2f, Size, TermCriteria, Vector};
+use opencv::prelude::{MatTraitConst, MatTraitManual};
+
+/// Settings of the fallback tracker.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrackOptions {
+    /// Queries per camera and mask.
+    pub queries: usize,
+    /// Lucas–Kanade window (pixels, odd).
+    pub window: i32,
+    /// Pyramid levels above the image.
+    pub pyramid_levels: i32,
+    /// Forward–backward disagreement (pixels) above which a track is lost.
+    pub forward_backward_px: f32,
+    /// Smallest structure-tensor eigenvalue (of 8-bit grey, 3×3 blocks) of a
+    /// query pixel: flat pixels cannot be tracked.
+    pub min_texture: f32,
+    /// Mask pixels within this distance (px) of the mask's edge are not
+    /// queried (their window sees the background).
+    pub edge_margin_px: u32,
+}
+
+impl Default for TrackOptions {
+    fn default() -> Self {
+        Self {
+            queries: 600,
+            window: 15,
+            pyramid_levels: 3,
+            forward_backward_px: 0.5,
+            min_texture: 1e-4,
+            edge_margin_px: 3,
+        }
+    }
+}
+
+/// 2D tracks of one camera: `points[t][n]` (pixel coordinates, pixel
+/// centres at +0.5) and `alive[t][n]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tracks2d {
+    pub points: Vec<Vec<[f32; 2]>>,
+    pub alive: Vec<Vec<bool>>,
+}
+
+impl Tracks2d {
+    pub fn len(&self) -> usize {
+        self.points.first().map_or(0, Vec::len)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Grey 8-bit `Mat` of an RGB image.
+pub fn grey_mat(image: &RgbImage) -> opencv::Result<Mat> {
+    let (w, h) = image.dimensions();
+    let mut mat = Mat::new_rows_cols_with_default(
+        h as i32,
+        w as i32,
+        opencv::core::CV_8UC1,
+        opencv::core::Scalar::all(0.0),
+    )?;
+    for (y, row) in image.rows().enumerate() {
+        let out = mat.at_row_mut::<u8>(y as i32)?;
+        for (o, p) in out.iter_mut().zip(row) {
+            let v = 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2]);
+            *o = v.round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    Ok(mat)
+}
+
+/// Mask pixels at least `margin` pixels (chessboard distance) inside the mask.
+fn eroded(mask: &GrayImage, margin: u32) -> Vec<(u32, u32)> {
+    let (w, h) = mask.dimensions();
+    let m = margin as i64;
+    let inside = |x: i64, y: i64| {
+        x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && mask.get_pixel(x as u32, y as u32).0[0] > 0
+    };
+    let mut out = Vec::new();
+    for y in 0..h as i64 {
+        for x in 0..w as i64 {
+            if inside(x, y) && inside(x - m, y) && inside(x + m, y) && inside(x, y - m) && inside(x, y + m)
+                && inside(x - m, y - m) && inside(x + m, y + m) && inside(x - m, y + m) && inside(x + m, y - m)
+            {
+                out.push((x as u32, y as u32));
+            }
+        }
+    }
+    out
+}
+
+/// Farthest-point query pixels on `mask` among pixels with texture.
+pub fn query_pixels(
+    first: &Mat,
+    mask: &GrayImage,
+    options: &TrackOptions,
+) -> opencv::Result<Vec<[f32; 2]>> {
+    let mut eigen = Mat::default();
+    opencv::imgproc::corner_min_eigen_val(first, &mut eigen, 3, 3, opencv::core::BORDER_DEFAULT)?;
+    let candidates: Vec<[f64; 3]> = eroded(mask, options.edge_margin_px)
+        .into_iter()
+        .filter(|&(x, y)| {
+            eigen
+                .at_2d::<f32>(y as i32, x as i32)
+                .is_ok_and(|&e| e >= options.min_texture)
+        })
+        .map(|(x, y)| [f64::from(x) + 0.5, f64::from(y) + 0.5, 0.0])
+        .collect();
+    Ok(
+        dm_mpm::neighbors::farthest_point_sampling(&candidates, options.queries)
+            .into_iter()
+            .map(|i| [candidates[i][0] as f32, candidates[i][1] as f32])
+            .collect(),
+    )
+}
+
+fn lk(
+    from: &Mat,
+    to: &Mat,
+    points: &Vector<Point2f>,
+    options: &TrackOptions,
+) -> opencv::Result<(Vector<Point2f>, Vector<u8>)> {
+    let mut next = Vector::<Point2f>::new();
+    let mut status = Vector::<u8>::new();
+    let mut error = Vector::<f32>::new();
+    opencv::video::calc_optical_flow_pyr_lk(
+        from,
+        to,
+        points,
+        &mut next,
+        &mut status,
+        &mut error,
+        Size::new(options.window, options.window),
+        options.pyramid_levels,
+        TermCriteria::new(
+            opencv::core::TermCriteria_COUNT + opencv::core::TermCriteria_EPS,
+            40,
+            0.003,
+        )?,
+        0,
+        1e-4,
+    )?;
+    Ok((next, status))
+}
+
+/// Tracks `queries` (pixel-centre coordinates) through `frames`; a track
+/// must stay on `masks[t]` (when given) to stay alive.
+pub fn track_points(
+    frames: &[Mat],
+    masks: Option<&[GrayImage]>,
+    queries: &[[f32; 2]],
+    options: &TrackOptions,
+) -> opencv::Result<Tracks2d> {
+    let n = queries.len();
+    if n == 0 {
+        // OpenCV refuses an empty point list; nothing to track.
+        return Ok(Tracks2d {
+            points: vec![Vec::new(); frames.len()],
+            alive: vec![Vec::new(); frames.len()],
+        });
+    }
+    let mut points = vec![queries.to_vec()];
+    let mut alive = vec![vec![true; n]];
+    // OpenCV's LK works in pixel-corner coordinates (pixel centre = integer).
+    let to_cv = |p: [f32; 2]| Point2f::new(p[0] - 0.5, p[1] - 0.5);
+    for t in 1..frames.len() {
+        let previous = &points[t - 1];
+        let was_alive = &alive[t - 1];
+        let current: Vector<Point2f> = previous.iter().map(|&p| to_cv(p)).collect();
+        let (forward, status_f) = lk(&frames[t - 1], &frames[t], &current, options)?;
+        let (backward, status_b) = lk(&frames[t], &frames[t - 1], &forward, options)?;
+        let mut next = Vec::with_capacity(n);
+        let mut next_alive = Vec::with_capacity(n);
+        for k in 0..n {
+            let f = forward.get(k)?;
+            let b = backward.get(k)?;
+            let c = current.get(k)?;
+            let fb = ((b.x - c.x).powi(2) + (b.y - c.y).powi(2)).sqrt();
+            let p = [f.x + 0.5, f.y + 0.5];
+            let mut ok = was_alive[k]
+                && status_f.get(k)? == 1
+                && status_b.get(k)? == 1
+                && fb <= options.forward_backward_px
+                && p[0].is_finite()
+                && p[1].is_finite();
+            if ok && let Some(masks) = masks {
+                let mask = &masks[t];
+                let (x, y) = (p[0].floor(), p[1].floor());
+                ok = x >= 0.0
+                    && y >= 0.0
+                    && (x as u32) < mask.width()
+                    && (y as u32) < mask.height()
+                    && mask.get_pixel(x as u32, y as u32).0[0] > 0;
+            }
+            next.push(if ok { p } else { previous[k] });
+            next_alive.push(ok);
+        }
+        points.push(next);
+        alive.push(next_alive);
+    }
+    Ok(Tracks2d { points, alive })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth random texture (sum of sinusoids) shifted by a known amount.
+    fn textured(width: u32, height: u32, shift: [f32; 2]) -> RgbImage {
+        RgbImage::from_fn(width, height, |x, y| {
+            let (u, v) = (x as f32 - shift[0], y as f32 - shift[1]);
+            let value = 128.0
+                + 40.0 * (0.31 * u + 0.17 * v).sin()
+                + 35.0 * (0.23 * u - 0.29 * v + 1.0).sin()
+                + 30.0 * (0.41 * u + 0.05 * v + 2.0).cos()
+                + 20.0 * (0.07 * u + 0.37 * v).sin();
+            let g = value.clamp(0.0, 255.0) as u8;
+            image::Rgb([g, g, g])
+        })
+    }
+
+    #[test]
+    fn lucas_kanade_recovers_a_known_shift() {
+        let shifts = [[0.0, 0.0], [1.3, -0.7], [2.9, 0.4], [4.2, 2.1]];
+        let frames: Vec<Mat> = shifts
+            .iter()
+            .map(|&s| grey_mat(&textured(96, 80, s)).expect("grey"))
+            .collect();
+        let mask = GrayImage::from_pixel(96, 80, image::Luma([255]));
+        let options = TrackOptions {
+            queries: 30,
+            edge_margin_px: 16,
+            ..TrackOptions::default()
+        };
+        let queries = query_pixels(&frames[0], &mask, &options).expect("queries");
+        assert_eq!(queries.len(), 30);
+        let tracks = track_points(&frames, None, &queries, &options).expect("tracking");
+        for (t, shift) in shifts.iter().enumerate() {
+            for (k, q) in queries.iter().enumerate() {
+                assert!(tracks.alive[t][k], "track {k} lost at frame {t}");
+                let p = tracks.points[t][k];
+                let error = ((p[0] - q[0] - shift[0]).powi(2) + (p[1] - q[1] - shift[1]).powi(2)).sqrt();
+                assert!(error < 0.05, "frame {t} track {k}: error {error} px");
+            }
+        }
+    }
+
+    #[test]
+    fn flat_pixels_are_not_queried_and_masks_stop_tracks() {
+        let flat = grey_mat(&RgbImage::from_pixel(40, 30, image::Rgb([90, 90, 90]))).expect("grey");
+        let mask = GrayImage::from_pixel(40, 30, image::Luma([255]));
+        assert!(query_pixels(&flat, &mask, &TrackOptions::default()).expect("queries").is_empty());
+
+        let frames: Vec<Mat> = (0..2)
+            .map(|_| grey_mat(&textured(96, 80, [0.0, 0.0])).expect("grey"))
+            .collect();
+        let empty = GrayImage::new(96, 80);
+        let masks = vec![mask_full(), empty];
+        let tracks = track_points(&frames, Some(&masks), &[[48.5, 40.5]], &TrackOptions::default())
+            .expect("tracking");
+        assert!(tracks.alive[0][0] && !tracks.alive[1][0]);
+        // No queries (a mask without texture): empty tracks, no OpenCV error.
+        let none = track_points(&frames, Some(&masks), &[], &TrackOptions::default()).expect("empty");
+        assert_eq!((none.points.len(), none.len()), (2, 0));
+    }
+
+    fn mask_full() -> GrayImage {
+        GrayImage::from_pixel(96, 80, image::Luma([255]))
+    }
+}

@@ -1,9 +1,13 @@
-//! Preprocessing into scene bundles (`docs/bundle.md`).
+//! Preprocessing into scene bundles (`docs/bundle.md`, `docs/prep.md`).
 //!
-//! Today: importing a PhysTwin case directory (method.md §10) with
-//! [`import_phystwin`]. PhysTwin stores its tracks and calibration as Python
-//! pickles of numpy arrays; [`pickle`] reads them without Python.
+//! * [`import_phystwin`]: a PhysTwin case directory (method.md §10). PhysTwin
+//!   stores its tracks and calibration as Python pickles of numpy arrays;
+//!   [`pickle`] reads them without Python.
+//! * [`models`]: `models_manifest/` and the ONNX adapters (segmentation,
+//!   point tracking, monocular depth).
+//! * [`scale`]: metric scale of monocular depth by median absolute residual.
 
+pub mod models;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;

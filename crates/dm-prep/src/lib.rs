@@ -11,6 +11,7 @@ pub mod models;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
+pub mod scale;
 
 pub use ndarray_raw::{ArrayData, ByteOrder, Element, NdArray};
 pub use phystwin::{ImportOptions, ImportSummary, MaskSource, import_phystwin, read_pickle_file};

@@ -11,6 +11,7 @@ pub mod models;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
+pub mod prior;
 pub mod scale;
 
 pub use ndarray_raw::{ArrayData, ByteOrder, Element, NdArray};

@@ -11,7 +11,6 @@ pub mod models;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
-pub mod prior;
 pub mod scale;
 
 pub use ndarray_raw::{ArrayData, ByteOrder, Element, NdArray};

@@ -3,7 +3,7 @@
 //! One subcommand per source format; `import-phystwin` reads a PhysTwin case
 //! directory (method.md §10). `dm-prep VIDEO --out BUNDLE` (no subcommand)
 //! prepares a monocular video with the ONNX models of `models_manifest/`;
-//! `models verify` checks model files; `prior` poses a mesh in a frame.
+//! `models verify` checks model files.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -12,8 +12,6 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dm_prep::models::{Manifest, MonocularModels, VerifyStatus, default_models_dir, verify_dir};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
-use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
-use nalgebra::Vector3;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -52,9 +50,6 @@ enum Command {
         #[command(subcommand)]
         command: ModelsCommand,
     },
-    /// Shape prior: pose a mesh (OBJ, glTF, GLB) in a frame by ORB matches +
-    /// PnP-RANSAC, then fit it to the first-frame points (ICP + ARAP).
-    Prior(PriorArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -68,46 +63,6 @@ enum ModelsCommand {
         #[arg(long)]
         manifest: Option<PathBuf>,
     },
-}
-
-#[derive(Args, Debug)]
-struct PriorArgs {
-    /// The object's mesh (.obj with vertex colours or materials, .gltf, .glb).
-    #[arg(long)]
-    mesh: PathBuf,
-    /// The first frame (PNG).
-    #[arg(long)]
-    frame: PathBuf,
-    /// The first frame's object mask (PNG, > 127 = object).
-    #[arg(long)]
-    mask: Option<PathBuf>,
-    /// Pinhole intrinsics fx,fy,cx,cy (pixels).
-    #[arg(long, value_delimiter = ',', num_args = 4)]
-    intrinsics: Vec<f64>,
-    /// First-frame object points, (N, 3) float32 .npy in the camera frame (metres).
-    #[arg(long)]
-    points: PathBuf,
-    /// Output directory: prior.json, prior_vertices.npy, prior_triangles.npy.
-    #[arg(long)]
-    out: PathBuf,
-}
-
-#[derive(Args, Debug)]
-struct ImportPhystwinArgs {
-    /// The PhysTwin case directory (only read).
-    case_dir: PathBuf,
-    /// Output bundle directory; must not exist unless --overwrite.
-    #[arg(long)]
-    out: PathBuf,
-    /// Object category (default: inferred from the first-frame points).
-    #[arg(long, value_enum)]
-    category: Option<CategoryArg>,
-    /// Label of the hands in mask/mask_info_<c>.json.
-    #[arg(long, default_value = DEFAULT_CONTROLLER_LABEL)]
-    controller_label: String,
-    /// Replace an existing bundle at --out once the new one is complete.
-    #[arg(long)]
-    overwrite: bool,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -169,7 +124,6 @@ fn main() -> ExitCode {
         Some(Command::Models {
             command: ModelsCommand::Verify { dir, manifest },
         }) => models_verify_command(dir.as_deref(), manifest.as_deref()),
-        Some(Command::Prior(args)) => prior_command(args),
         None => video_command(&cli.video),
     };
     match result {
@@ -235,83 +189,4 @@ fn video_command(args: &VideoArgs) -> Result<()> {
         video.display(),
         models_dir.display()
     )
-}
-
-fn prior_command(args: &PriorArgs) -> Result<()> {
-    let [fx, fy, cx, cy] = args.intrinsics[..] else {
-        bail!("--intrinsics: expected fx,fy,cx,cy");
-    };
-    let mesh = Mesh::load(&args.mesh)?;
-    let frame = image::open(&args.frame)
-        .with_context(|| format!("{}: reading the frame", args.frame.display()))?
-        .to_rgb8();
-    let mask = match &args.mask {
-        Some(path) => Some(
-            image::open(path)
-                .with_context(|| format!("{}: reading the mask", path.display()))?
-                .to_luma8(),
-        ),
-        None => None,
-    };
-    let points: ndarray::Array2<f32> = dm_bundle::read_npy_checked(&args.points)?;
-    if points.ncols() != 3 {
-        bail!("{}: shape {:?}, expected (N, 3)", args.points.display(), points.dim());
-    }
-    let points: Vec<Vector3<f64>> = points
-        .rows()
-        .into_iter()
-        .map(|row| Vector3::new(f64::from(row[0]), f64::from(row[1]), f64::from(row[2])))
-        .collect();
-    let intrinsics = Intrinsics {
-        fx,
-        fy,
-        cx,
-        cy,
-        width: frame.width(),
-        height: frame.height(),
-    };
-    let result = fit_prior(
-        &mesh,
-        &frame,
-        mask.as_ref(),
-        &intrinsics,
-        &points,
-        &PnpOptions::default(),
-        &FitOptions::default(),
-    )
-    .with_context(|| format!("fitting {} to {}", args.mesh.display(), args.frame.display()))?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let pose_json = |pose: &nalgebra::Isometry3<f64>| {
-        let rotation = pose.rotation.to_rotation_matrix();
-        serde_json::json!({
-            "rotation": (0..3).map(|r| (0..3).map(|c| rotation[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
-            "translation_m": pose.translation.vector.iter().copied().collect::<Vec<_>>(),
-        })
-    };
-    let report = serde_json::json!({
-        "mesh": args.mesh.display().to_string(),
-        "pnp_mesh_to_camera": pose_json(&result.pnp.mesh_to_camera),
-        "pnp_view": result.pnp.view,
-        "pnp_matches": result.pnp.matches,
-        "pnp_inliers": result.pnp.inliers,
-        "icp_mesh_to_camera": pose_json(&result.fit.rigid_pose),
-        "arap_mesh_to_camera": pose_json(&result.fit.deformed_pose),
-        "median_distance_before_m": result.fit.median_distance_before_m,
-        "median_distance_after_m": result.fit.median_distance_after_m,
-    });
-    let vertices = ndarray::Array2::from_shape_fn((result.fit.vertices.len(), 3), |(i, k)| result.fit.vertices[i][k] as f32);
-    let triangles = ndarray::Array2::from_shape_fn((result.triangles.len(), 3), |(i, k)| result.triangles[i][k] as i32);
-    dm_bundle::write_npy_file(&args.out.join("prior_vertices.npy"), &vertices)?;
-    dm_bundle::write_npy_file(&args.out.join("prior_triangles.npy"), &triangles)?;
-    dm_bundle::write_json_atomic(&args.out.join("prior.json"), &report)?;
-    println!(
-        "wrote {}: PnP {} inliers of {} matches (view {}), median point distance {:.2} mm -> {:.2} mm",
-        args.out.display(),
-        result.pnp.inliers,
-        result.pnp.matches,
-        result.pnp.view,
-        1e3 * result.fit.median_distance_before_m,
-        1e3 * result.fit.median_distance_after_m
-    );
-    Ok(())
 }

@@ -65,6 +65,24 @@ enum ModelsCommand {
     },
 }
 
+#[derive(Args, Debug)]
+struct ImportPhystwinArgs {
+    /// The PhysTwin case directory (only read).
+    case_dir: PathBuf,
+    /// Output bundle directory; must not exist unless --overwrite.
+    #[arg(long)]
+    out: PathBuf,
+    /// Object category (default: inferred from the first-frame points).
+    #[arg(long, value_enum)]
+    category: Option<CategoryArg>,
+    /// Label of the hands in mask/mask_info_<c>.json.
+    #[arg(long, default_value = DEFAULT_CONTROLLER_LABEL)]
+    controller_label: String,
+    /// Replace an existing bundle at --out once the new one is complete.
+    #[arg(long)]
+    overwrite: bool,
+}
+
 #[derive(ValueEnum, Clone, Copy, Debug)]
 enum CategoryArg {
     Linear,

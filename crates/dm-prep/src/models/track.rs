@@ -35,8 +35,9 @@ impl PointTracker {
 
     /// Tracks `queries` (frame-0 pixels) through `frames` (same size).
     pub fn track(&mut self, frames: &[RgbImage], queries: &[[f64; 2]]) -> Result<Tracks2d, ModelError> {
+        let label = format!("{} ({})", self.model.entry.model, self.model.path.display());
         let bad = |problem: String| ModelError::BadInput {
-            model: format!("{} ({})", self.model.entry.model, self.model.path.display()),
+            model: label.clone(),
             problem,
         };
         let Some(first) = frames.first() else {

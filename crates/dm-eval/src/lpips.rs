@@ -14,12 +14,11 @@
 use image::RgbImage;
 use ort::session::Session;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 pub const MODEL_FILE: &str = "lpips_alex_v01.onnx";
-pub const DYLIB_FILE: &str = "ort_dylib_path";
-pub const CACHE_DIR_ENV: &str = "DM_LPIPS_DIR";
-pub const DYLIB_ENV: &str = "ORT_DYLIB_PATH";
+pub const DYLIB_FILE: &str = dm_ort::DYLIB_RECORD_FILE;
+pub const CACHE_DIR_ENV: &str = dm_ort::CACHE_DIR_ENV;
+pub const DYLIB_ENV: &str = dm_ort::DYLIB_ENV;
 /// The command that builds the cache.
 pub const MAKE_TARGET: &str = "make lpips";
 /// AlexNet's first convolution (11×11, stride 4) and two 3×3 / 2 pools
@@ -57,15 +56,7 @@ pub struct LpipsPaths {
 impl LpipsPaths {
     /// `$DM_LPIPS_DIR`, else the workspace's `.cache/lpips`.
     pub fn default_cache_dir() -> PathBuf {
-        match std::env::var_os(CACHE_DIR_ENV) {
-            Some(dir) if !dir.is_empty() => PathBuf::from(dir),
-            // crates/dm-eval → the workspace root.
-            _ => Path::new(env!("CARGO_MANIFEST_DIR"))
-                .ancestors()
-                .nth(2)
-                .unwrap_or(Path::new("."))
-                .join(".cache/lpips"),
-        }
+        dm_ort::default_cache_dir()
     }
 
     /// The paths of a cache directory, checked to exist.
@@ -74,31 +65,15 @@ impl LpipsPaths {
         if !model.is_file() {
             return Err(LpipsError::MissingCache { path: model });
         }
-        let dylib = match std::env::var_os(DYLIB_ENV) {
-            Some(path) if !path.is_empty() => PathBuf::from(path),
-            _ => {
-                let record = dir.join(DYLIB_FILE);
-                let text =
-                    std::fs::read_to_string(&record).map_err(|_| LpipsError::MissingCache {
-                        path: record.clone(),
-                    })?;
-                let path = PathBuf::from(text.trim());
-                if text.trim().is_empty() {
-                    return Err(LpipsError::BadCache {
-                        path: record,
-                        field: "(document)",
-                        problem: "empty; expected the path of libonnxruntime.so".into(),
-                    });
-                }
-                path
-            }
-        };
-        if !dylib.is_file() {
-            return Err(LpipsError::Runtime {
-                path: dylib,
-                message: "no such file".into(),
-            });
-        }
+        let dylib = dm_ort::dylib_path(dir).map_err(|error| match error {
+            dm_ort::RuntimeError::MissingRecord { path } => LpipsError::MissingCache { path },
+            dm_ort::RuntimeError::EmptyRecord { path } => LpipsError::BadCache {
+                path,
+                field: "(document)",
+                problem: "empty; expected the path of libonnxruntime.so".into(),
+            },
+            dm_ort::RuntimeError::Load { path, message } => LpipsError::Runtime { path, message },
+        })?;
         Ok(Self { model, dylib })
     }
 
@@ -108,21 +83,13 @@ impl LpipsPaths {
     }
 }
 
-/// ONNX Runtime allows one environment per process, and one library: the
-/// first successful load wins for the process.
-static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
-
 fn environment(dylib: &Path) -> Result<ort::environment::Environment, LpipsError> {
-    let result = ENVIRONMENT.get_or_init(|| {
-        ort::init_from(dylib)
-            .map_err(|e| e.to_string())?
-            .with_name("dm-eval")
-            .build()
-            .map_err(|e| e.to_string())
-    });
-    result.clone().map_err(|message| LpipsError::Runtime {
-        path: dylib.to_path_buf(),
-        message,
+    dm_ort::environment(dylib).map_err(|error| match error {
+        dm_ort::RuntimeError::Load { path, message } => LpipsError::Runtime { path, message },
+        other => LpipsError::Runtime {
+            path: dylib.to_path_buf(),
+            message: other.to_string(),
+        },
     })
 }
 

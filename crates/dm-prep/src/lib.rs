@@ -1,4 +1,4 @@
-//! Preprocessing into scene bundles (`docs/bundle.md`).
+//! Preprocessing into scene bundles (`docs/bundle.md`, `docs/prep.md`).
 //!
 //! Importing a PhysTwin case directory (method.md §10) with
 //! [`import_phystwin`]. PhysTwin stores its tracks and calibration as Python
@@ -8,13 +8,19 @@
 //! with classical fallbacks that need no model weights: [`segment`],
 //! [`track2d`], [`lift`], [`fill`], run and cached by [`stages`]; [`score`]
 //! compares the resulting tracks with a reference bundle's.
+//!
+//! Model stages: [`models`] (`models_manifest/` and the ONNX adapters:
+//! segmentation, point tracking, monocular depth) and [`scale`] (metric
+//! scale of monocular depth by median absolute residual).
 
 pub mod capture;
 pub mod fill;
 pub mod lift;
+pub mod models;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
+pub mod scale;
 pub mod score;
 pub mod segment;
 pub mod stages;

@@ -5,22 +5,46 @@
 //! goes through the stages `segment`, `depth`, `track`, `lift`, `fill`
 //! (each cached under the work directory) or `all`, which also writes the
 //! bundle; `score` compares a bundle's tracks with a reference bundle's.
+//! `dm-prep VIDEO --out BUNDLE` (no subcommand) prepares a monocular video
+//! with the ONNX models of `models_manifest/`; `models verify` checks
+//! model files.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use dm_prep::models::{Manifest, MonocularModels, VerifyStatus, default_models_dir, verify_dir};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
 use dm_prep::score::score_tracks;
 use dm_prep::stages::{Prep, PrepOptions, Stage, StageOutcome};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser, Debug)]
-#[command(name = "dm-prep", version, about = "Turn captures into scene bundles")]
+#[command(
+    name = "dm-prep",
+    version,
+    about = "Turn captures into scene bundles",
+    args_conflicts_with_subcommands = true
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    video: VideoArgs,
+}
+
+/// `dm-prep VIDEO --out BUNDLE`: a monocular video.
+#[derive(Args, Debug)]
+struct VideoArgs {
+    /// A monocular video (mp4).
+    video: Option<PathBuf>,
+    /// Output bundle directory.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
+    #[arg(long)]
+    models: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -42,6 +66,24 @@ enum Command {
     All(AllArgs),
     /// Median 3D track error of BUNDLE against --reference.
     Score(ScoreArgs),
+    /// ONNX model files of models_manifest/.
+    Models {
+        #[command(subcommand)]
+        command: ModelsCommand,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum ModelsCommand {
+    /// Check the model files present in DIR: sha256 (where the manifest pins
+    /// one) and the ONNX input/output signature. Absent files are listed.
+    Verify {
+        /// Models directory ($DM_MODELS_DIR, else ./models).
+        dir: Option<PathBuf>,
+        /// A manifest directory other than the built-in models_manifest/.
+        #[arg(long)]
+        manifest: Option<PathBuf>,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -280,14 +322,18 @@ fn score_command(args: &ScoreArgs) -> Result<()> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
-        Command::ImportPhystwin(args) => import_phystwin_command(args),
-        Command::Segment(args) => stage_command(Stage::Segment, args),
-        Command::Depth(args) => stage_command(Stage::Depth, args),
-        Command::Track(args) => stage_command(Stage::Track, args),
-        Command::Lift(args) => stage_command(Stage::Lift, args),
-        Command::Fill(args) => stage_command(Stage::Fill, args),
-        Command::All(args) => all_command(args),
-        Command::Score(args) => score_command(args),
+        Some(Command::ImportPhystwin(args)) => import_phystwin_command(args),
+        Some(Command::Segment(args)) => stage_command(Stage::Segment, args),
+        Some(Command::Depth(args)) => stage_command(Stage::Depth, args),
+        Some(Command::Track(args)) => stage_command(Stage::Track, args),
+        Some(Command::Lift(args)) => stage_command(Stage::Lift, args),
+        Some(Command::Fill(args)) => stage_command(Stage::Fill, args),
+        Some(Command::All(args)) => all_command(args),
+        Some(Command::Score(args)) => score_command(args),
+        Some(Command::Models {
+            command: ModelsCommand::Verify { dir, manifest },
+        }) => models_verify_command(dir.as_deref(), manifest.as_deref()),
+        None => video_command(&cli.video),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -296,4 +342,60 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn load_manifest(dir: Option<&Path>) -> Result<Manifest> {
+    match dir {
+        Some(dir) => Manifest::load_dir(dir).with_context(|| format!("reading manifest {}", dir.display())),
+        None => Manifest::builtin().context("reading the built-in models_manifest/"),
+    }
+}
+
+fn models_verify_command(dir: Option<&Path>, manifest: Option<&Path>) -> Result<()> {
+    let manifest = load_manifest(manifest)?;
+    let dir = dir.map_or_else(default_models_dir, Path::to_path_buf);
+    let reports = verify_dir(&manifest, &dir);
+    let mut failed = 0;
+    for report in &reports {
+        match &report.status {
+            VerifyStatus::Absent => println!("absent  {:<22} {}", report.id, report.path.display()),
+            VerifyStatus::Ok { sha256, sha256_pinned } => println!(
+                "ok      {:<22} {} sha256 {sha256}{}",
+                report.id,
+                report.path.display(),
+                if *sha256_pinned { " (matches the manifest)" } else { " (not pinned in the manifest)" }
+            ),
+            VerifyStatus::Failed(message) => {
+                failed += 1;
+                println!("FAILED  {:<22} {message}", report.id);
+            }
+        }
+    }
+    if failed > 0 {
+        bail!("{failed} of the model files in {} failed verification", dir.display());
+    }
+    Ok(())
+}
+
+fn video_command(args: &VideoArgs) -> Result<()> {
+    let Some(video) = &args.video else {
+        bail!("nothing to do: give a video (`dm-prep video.mp4 --out bundle/`) or a subcommand (`dm-prep --help`)");
+    };
+    let Some(out) = &args.out else {
+        bail!("{}: --out BUNDLE is required", video.display());
+    };
+    if !video.is_file() {
+        bail!("{}: no such video file", video.display());
+    }
+    let manifest = load_manifest(None)?;
+    let models_dir = args.models.clone().unwrap_or_else(default_models_dir);
+    // Classical fallbacks (issue 8, capture pipeline) go here: when a model
+    // is missing, run the OpenCV fallback for that stage instead of failing.
+    let _models = MonocularModels::load(&manifest, &models_dir, 1)
+        .with_context(|| format!("preparing {} into {}", video.display(), out.display()))?;
+    bail!(
+        "{}: the models in {} load and match the manifest, but this build has no monocular lift/fill stage to assemble a bundle from their outputs (issue 8 capture pipeline)",
+        video.display(),
+        models_dir.display()
+    )
 }

@@ -72,7 +72,12 @@ fn issue5_ci_suite_runs_resumes_and_writes_tables() {
                 let value = run[split][key].as_f64().unwrap_or(f64::NAN);
                 assert!(value.is_finite(), "{split}.{key} = {}", run[split][key]);
             }
-            assert!(run[split]["lpips"].is_null(), "LPIPS was skipped");
+            // --skip-lpips skips only when the network is missing.
+            let lpips = &run[split]["lpips"];
+            match run["lpips"].as_bool() {
+                Some(true) => assert!(lpips.as_f64().is_some_and(f64::is_finite), "{lpips}"),
+                _ => assert!(lpips.is_null(), "LPIPS was skipped: {lpips}"),
+            }
         }
         // The variant's flags reached the fit.
         let actuators = run["fit"]["model"]["actuators"].as_str().expect("actuators");

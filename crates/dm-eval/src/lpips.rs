@@ -177,8 +177,7 @@ impl Lpips {
         skip_missing: bool,
     ) -> Result<(Option<Self>, String), LpipsError> {
         let dir = dir.map_or_else(LpipsPaths::default_cache_dir, Path::to_path_buf);
-        match LpipsPaths::in_dir(&dir).and_then(|paths| Ok((Self::load(&paths, threads)?, paths)))
-        {
+        match LpipsPaths::in_dir(&dir).and_then(|paths| Ok((Self::load(&paths, threads)?, paths))) {
             Ok((network, paths)) => Ok((Some(network), paths.model.display().to_string())),
             Err(e) if skip_missing => Ok((None, format!("skipped: {e}"))),
             Err(e) => Err(e),

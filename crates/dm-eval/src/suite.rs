@@ -164,7 +164,9 @@ impl Suite {
     /// Reads and checks a suite file; every error names the file and field.
     pub fn load(path: &Path) -> Result<Self, SuiteError> {
         let file: SuiteFile = dm_bundle::read_json(path)?;
-        let bad = |field: String, problem: String| SuiteError::File(BundleError::new(path, field, problem));
+        let bad = |field: String, problem: String| {
+            SuiteError::File(BundleError::new(path, field, problem))
+        };
         if file.scenes.is_empty() {
             return Err(bad("scenes".into(), "lists no scene".into()));
         }
@@ -206,7 +208,10 @@ impl Suite {
                 id.push_str("-2h");
             }
             if scenes.iter().any(|s| s.id == id) {
-                return Err(bad(format!("scenes[{i}]"), format!("scene `{id}` is listed twice")));
+                return Err(bad(
+                    format!("scenes[{i}]"),
+                    format!("scene `{id}` is listed twice"),
+                ));
             }
             scenes.push(PlannedScene {
                 id,
@@ -234,7 +239,12 @@ impl Suite {
                     format!("variant `{}` is listed twice", spec.name),
                 ));
             }
-            let fit_args: Vec<String> = file.fit_args.iter().chain(&spec.fit_args).cloned().collect();
+            let fit_args: Vec<String> = file
+                .fit_args
+                .iter()
+                .chain(&spec.fit_args)
+                .cloned()
+                .collect();
             let options =
                 parse_fit_args(&fit_args).map_err(|e| bad(format!("variants[{i}].fit_args"), e))?;
             variants.push(PlannedVariant {
@@ -343,7 +353,11 @@ pub struct VariantRecord {
 #[derive(Clone, Copy, Debug)]
 pub enum SuiteProgress<'a> {
     /// Synthesising scene `index` of `total`.
-    Scene { id: &'a str, index: usize, total: usize },
+    Scene {
+        id: &'a str,
+        index: usize,
+        total: usize,
+    },
     /// Run `index` of `total` started (`cached`: its result is reused).
     Run {
         scene: &'a str,
@@ -401,7 +415,10 @@ fn scene_bundle(
         remove_dir_if_present(&dir)?;
         std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, "creating", &e))?;
         let mut detail = |stage: &str, done: usize, total: usize| {
-            progress(SuiteProgress::Detail(&format!("{}: {stage} {done}/{total}", scene.id)))
+            progress(SuiteProgress::Detail(&format!(
+                "{}: {stage} {done}/{total}",
+                scene.id
+            )))
         };
         dm_synth::generate(&scene.config, &bundle_dir, &truth_path, &mut detail).map_err(
             |source| SuiteError::Synth {
@@ -432,9 +449,14 @@ fn run_one(
     };
     let clock = Instant::now();
     let mut fit = |resume: bool| {
-        run_fit(bundle, &variant.options, &model_dir, resume, None, &mut |line| {
-            progress(SuiteProgress::Detail(line))
-        })
+        run_fit(
+            bundle,
+            &variant.options,
+            &model_dir,
+            resume,
+            None,
+            &mut |line| progress(SuiteProgress::Detail(line)),
+        )
     };
     let outcome = match fit(true) {
         // A checkpoint of other options (the suite file changed): start over.
@@ -605,7 +627,11 @@ fn finite_mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, count) = values
         .filter(|v| v.is_finite())
         .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    if count == 0 { f64::NAN } else { sum / count as f64 }
+    if count == 0 {
+        f64::NAN
+    } else {
+        sum / count as f64
+    }
 }
 
 /// Per-metric means over scenes (each scene's split mean counts once).
@@ -723,7 +749,11 @@ pub fn tables_markdown(report: &SuiteReport) -> String {
             md,
             "¹ Diverged runs (the fit or the rollout hit NaN or det F ≤ 0) are counted, not averaged: the metrics are means over the runs that finished, as the paper reports its diverging ablation.\n"
         );
-        for run in report.runs.iter().filter(|r| r.status == RunStatus::Diverged) {
+        for run in report
+            .runs
+            .iter()
+            .filter(|r| r.status == RunStatus::Diverged)
+        {
             let _ = writeln!(
                 md,
                 "- {} / {}: {}",
@@ -803,15 +833,19 @@ mod tests {
     #[test]
     fn marked_section_is_replaced_and_appended_once() {
         let path = Path::new("RESULTS.md");
-        let first = replace_marked_section("# Results\n", "table 1\n", "## Suite", path)
-            .expect("appends");
+        let first =
+            replace_marked_section("# Results\n", "table 1\n", "## Suite", path).expect("appends");
         assert!(first.contains("## Suite") && first.contains("table 1"));
-        let second = replace_marked_section(&format!("{first}\n## After\n"), "table 2", "## Suite", path)
-            .expect("replaces");
+        let second =
+            replace_marked_section(&format!("{first}\n## After\n"), "table 2", "## Suite", path)
+                .expect("replaces");
         assert!(second.contains("table 2") && !second.contains("table 1"));
         assert_eq!(second.matches(SECTION_BEGIN).count(), 1);
         assert_eq!(second.matches("## Suite").count(), 1);
-        assert!(second.contains("## After"), "text after the section is kept");
+        assert!(
+            second.contains("## After"),
+            "text after the section is kept"
+        );
         let broken = replace_marked_section(SECTION_END, "x", "## Suite", path)
             .expect_err("an end marker without a begin marker is an error");
         assert!(broken.to_string().contains("RESULTS.md"), "{broken}");
@@ -852,7 +886,10 @@ mod tests {
                     config: config.clone(),
                 })
                 .to_vec(),
-            variants: vec![variant("full", &[]), variant("rigid", &["--actuators", "rigid"])],
+            variants: vec![
+                variant("full", &[]),
+                variant("rigid", &["--actuators", "rigid"]),
+            ],
         };
         let metrics = |chamfer: f64| SplitMetrics {
             chamfer,
@@ -866,8 +903,14 @@ mod tests {
             scene: scene.into(),
             category: Category::Volumetric,
             variant: variant.name.clone(),
-            status: if chamfer.is_some() { RunStatus::Ok } else { RunStatus::Diverged },
-            diverged: chamfer.is_none().then(|| "fit: simulation diverged".to_owned()),
+            status: if chamfer.is_some() {
+                RunStatus::Ok
+            } else {
+                RunStatus::Diverged
+            },
+            diverged: chamfer
+                .is_none()
+                .then(|| "fit: simulation diverged".to_owned()),
             train: chamfer.map(metrics),
             test: chamfer.map(metrics),
             fit_seconds: 1.0,
@@ -888,7 +931,11 @@ mod tests {
         assert_eq!(tables.len(), 2, "all + volumetric");
         let full_row = &tables[0].rows[0];
         assert_eq!((full_row.runs, full_row.diverged), (2, 1));
-        assert_eq!(full_row.test.as_ref().map(|t| t.chamfer), Some(0.01), "the diverged run is not averaged");
+        assert_eq!(
+            full_row.test.as_ref().map(|t| t.chamfer),
+            Some(0.01),
+            "the diverged run is not averaged"
+        );
         assert!(tables[0].rows[1].test.is_none(), "all rigid runs diverged");
         let report = SuiteReport {
             suite: "suite.json".into(),
@@ -901,9 +948,20 @@ mod tests {
             seconds: 0.0,
         };
         let md = tables_markdown(&report);
-        assert!(md.contains("| full | 0.500 | 0.0100 | 0.0200 | 20.00 | 0.900 | – | 1/2¹ |"), "{md}");
-        assert!(md.contains("| rigid | diverged | diverged | diverged | diverged | diverged | diverged | 2/2¹ |"), "{md}");
-        assert!(md.contains("- toy-b / full: fit: simulation diverged"), "{md}");
+        assert!(
+            md.contains("| full | 0.500 | 0.0100 | 0.0200 | 20.00 | 0.900 | – | 1/2¹ |"),
+            "{md}"
+        );
+        assert!(
+            md.contains(
+                "| rigid | diverged | diverged | diverged | diverged | diverged | diverged | 2/2¹ |"
+            ),
+            "{md}"
+        );
+        assert!(
+            md.contains("- toy-b / full: fit: simulation diverged"),
+            "{md}"
+        );
     }
 
     #[test]
@@ -924,8 +982,13 @@ mod tests {
 
     #[test]
     fn variant_flags_parse_like_dm_fit() {
-        let options = parse_fit_args(&["--residual".into(), "none".into(), "--iters".into(), "2".into()])
-            .expect("valid flags");
+        let options = parse_fit_args(&[
+            "--residual".into(),
+            "none".into(),
+            "--iters".into(),
+            "2".into(),
+        ])
+        .expect("valid flags");
         assert_eq!(options.iters, 2);
         assert_eq!(options.model.residual, dm_model::ResidualKind::None);
         let error = parse_fit_args(&["--itres".into(), "2".into()]).expect_err("unknown flag");

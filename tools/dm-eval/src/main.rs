@@ -60,13 +60,14 @@ struct EvalArgs {
 }
 
 fn load_lpips(args: &EvalArgs) -> Result<(Option<Lpips>, String)> {
-    let (network, note) =
-        Lpips::load_or_skip(args.lpips_dir.as_deref(), args.lpips_threads, args.skip_lpips)
-            .with_context(|| {
-                format!(
-                    "loading LPIPS (run `{MAKE_TARGET}`, or pass --skip-lpips to report it as null)"
-                )
-            })?;
+    let (network, note) = Lpips::load_or_skip(
+        args.lpips_dir.as_deref(),
+        args.lpips_threads,
+        args.skip_lpips,
+    )
+    .with_context(|| {
+        format!("loading LPIPS (run `{MAKE_TARGET}`, or pass --skip-lpips to report it as null)")
+    })?;
     if network.is_none() {
         eprintln!("warning: LPIPS {note} (reported as null)");
     }
@@ -96,8 +97,12 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
         ProgressStyle::with_template("[{bar:30}] {pos}/{len} {elapsed} {prefix} {wide_msg}")?
             .progress_chars("=> "),
     );
-    let report = run_suite(&suite, &args.out, lpips.as_mut(), &command, &mut |event| {
-        match event {
+    let report = run_suite(
+        &suite,
+        &args.out,
+        lpips.as_mut(),
+        &command,
+        &mut |event| match event {
             SuiteProgress::Scene { id, .. } => {
                 bar.set_prefix(format!("{id}: synthesising"));
             }
@@ -114,8 +119,8 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
                 bar.println(format!("{scene} / {variant}{note}"));
             }
             SuiteProgress::Detail(line) => bar.set_message(line.to_owned()),
-        }
-    })
+        },
+    )
     .with_context(|| {
         format!(
             "running suite {} into {}",

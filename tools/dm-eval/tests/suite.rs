@@ -26,6 +26,9 @@ fn read_json(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(path).expect("readable")).expect("valid JSON")
 }
 
+/// Turns the CI suite into a bad one.
+type Corruption = Box<dyn Fn(&mut serde_json::Value)>;
+
 const METRICS: [&str; 5] = ["chamfer", "track", "iou", "psnr", "ssim"];
 
 #[test]
@@ -80,8 +83,14 @@ fn issue5_ci_suite_runs_resumes_and_writes_tables() {
             }
         }
         // The variant's flags reached the fit.
-        let actuators = run["fit"]["model"]["actuators"].as_str().expect("actuators");
-        let expected = if run["variant"] == "single" { "single" } else { "dca" };
+        let actuators = run["fit"]["model"]["actuators"]
+            .as_str()
+            .expect("actuators");
+        let expected = if run["variant"] == "single" {
+            "single"
+        } else {
+            "dca"
+        };
         assert_eq!(actuators, expected);
         assert_eq!(run["fit"]["iters"], 1);
     }
@@ -108,7 +117,10 @@ fn issue5_ci_suite_runs_resumes_and_writes_tables() {
     assert!(tables.contains("**All scenes**") && tables.contains("**Linear**"));
     assert!(tables.contains("| no_residual |") && tables.contains("| single |"));
     let markdown = std::fs::read_to_string(&results).expect("results file");
-    assert!(markdown.starts_with("# Results\n\nEarlier text.\n"), "{markdown}");
+    assert!(
+        markdown.starts_with("# Results\n\nEarlier text.\n"),
+        "{markdown}"
+    );
     assert!(markdown.contains("| single |"));
 
     // Rerun: every result comes from the cache; the tables are the same and
@@ -142,7 +154,7 @@ fn issue5_ci_suite_runs_resumes_and_writes_tables() {
 fn issue5_bad_suite_file_names_file_and_field() {
     let dir = tempfile::tempdir().expect("temp dir");
     let ci: serde_json::Value = read_json(&ci_suite());
-    let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>, &str); 3] = [
+    let cases: [(&str, Corruption, &str); 3] = [
         (
             "bad-flag.json",
             Box::new(|s| s["variants"][1]["fit_args"] = serde_json::json!(["--actuators", "glue"])),
@@ -168,8 +180,14 @@ fn issue5_bad_suite_file_names_file_and_field() {
         let result = run_suite(&path, &out, &[]);
         let stderr = String::from_utf8_lossy(&result.stderr);
         assert!(!result.status.success(), "{name} was accepted");
-        assert!(stderr.contains(name), "{name}: error does not name the file: {stderr}");
-        assert!(stderr.contains(field), "{name}: error does not name `{field}`: {stderr}");
+        assert!(
+            stderr.contains(name),
+            "{name}: error does not name the file: {stderr}"
+        );
+        assert!(
+            stderr.contains(field),
+            "{name}: error does not name `{field}`: {stderr}"
+        );
         assert!(!out.exists(), "{name}: nothing is written for a bad suite");
     }
 }

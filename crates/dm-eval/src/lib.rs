@@ -8,6 +8,7 @@ pub mod evaluate;
 pub mod image_metrics;
 pub mod lpips;
 pub mod report;
+pub mod suite;
 
 pub use evaluate::{
     EvalOptions, Evaluation, evaluate, render_prediction, render_splat_prediction, renderer_name,
@@ -15,7 +16,7 @@ pub use evaluate::{
 pub use image_metrics::ImageMetricError;
 pub use lpips::{Lpips, LpipsError, LpipsPaths};
 
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 
 /// Why an evaluation could not be done.
 #[derive(Debug, thiserror::Error)]
@@ -71,14 +72,24 @@ pub enum SplitName {
 }
 
 /// Means over a split's frames of each metric's finite per-frame values.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// NaN is written as `null` (serde_json) and read back as NaN.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SplitMetrics {
+    #[serde(deserialize_with = "nan_if_null")]
     pub chamfer: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub track: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub iou: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub psnr: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub ssim: f64,
     pub lpips: Option<f64>,
+}
+
+fn nan_if_null<'de, D: Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::NAN))
 }
 
 /// Everything `metrics.json` holds about the scores.

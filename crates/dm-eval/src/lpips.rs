@@ -134,6 +134,23 @@ impl Lpips {
         })
     }
 
+    /// The network of `dir` (`None`: the default cache). With `skip_missing`
+    /// a network that cannot be loaded gives `None` and the reason instead
+    /// of an error (LPIPS is then reported as null). The note is the
+    /// network file, or `skipped: REASON`.
+    pub fn load_or_skip(
+        dir: Option<&Path>,
+        threads: usize,
+        skip_missing: bool,
+    ) -> Result<(Option<Self>, String), LpipsError> {
+        let dir = dir.map_or_else(LpipsPaths::default_cache_dir, Path::to_path_buf);
+        match LpipsPaths::in_dir(&dir).and_then(|paths| Ok((Self::load(&paths, threads)?, paths))) {
+            Ok((network, paths)) => Ok((Some(network), paths.model.display().to_string())),
+            Err(e) if skip_missing => Ok((None, format!("skipped: {e}"))),
+            Err(e) => Err(e),
+        }
+    }
+
     /// LPIPS distance between two images of the same size (≥ 32×32).
     pub fn distance(&mut self, a: &RgbImage, b: &RgbImage) -> Result<f64, LpipsError> {
         if a.dimensions() != b.dimensions() {

@@ -40,15 +40,15 @@ struct MetricsFile<'a> {
 }
 
 /// One metric's column: JSON key, heading, digits shown, better direction.
-struct Column {
-    key: &'static str,
-    heading: &'static str,
-    digits: usize,
+pub(crate) struct Column {
+    pub(crate) key: &'static str,
+    pub(crate) heading: &'static str,
+    pub(crate) digits: usize,
     per_frame: fn(&FrameMetrics) -> Option<f64>,
-    split: fn(&SplitMetrics) -> Option<f64>,
+    pub(crate) split: fn(&SplitMetrics) -> Option<f64>,
 }
 
-const COLUMNS: [Column; 6] = [
+pub(crate) const COLUMNS: [Column; 6] = [
     Column {
         key: "iou",
         heading: "IoU ↑",
@@ -93,7 +93,7 @@ const COLUMNS: [Column; 6] = [
     },
 ];
 
-fn cell(value: Option<f64>, digits: usize) -> String {
+pub(crate) fn cell(value: Option<f64>, digits: usize) -> String {
     match value {
         Some(v) if v.is_finite() => format!("{v:.digits$}"),
         Some(v) if v == f64::INFINITY => "∞".into(),

@@ -1,17 +1,19 @@
 //! `dm-eval`: the benchmark's future-prediction metrics of a world model on
 //! a scene bundle (method.md §9; docs/metrics.md): one open-loop rollout
 //! from frame 0 driven by the observed hand track, scored per frame and
-//! per split; writes metrics.json, metrics.md and per-frame plots.
+//! per split; writes metrics.json, metrics.md and per-frame plots. With
+//! `--suite FILE` it runs a benchmark suite instead (docs/suite.md).
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use dm_bundle::Bundle;
-use dm_eval::lpips::{Lpips, LpipsPaths, MAKE_TARGET};
+use dm_eval::lpips::{Lpips, MAKE_TARGET};
 use dm_eval::report::{RunInfo, write_report};
+use dm_eval::suite::{Suite, SuiteProgress, run_suite, update_results_markdown};
 use dm_eval::{EvalOptions, evaluate};
 use dm_model::WorldModel;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
@@ -21,12 +23,24 @@ use std::time::Instant;
 )]
 struct EvalArgs {
     /// Model directory with model.json (dm-fit's output).
-    model_dir: PathBuf,
+    #[arg(required_unless_present = "suite")]
+    model_dir: Option<PathBuf>,
     /// Scene bundle directory.
-    bundle: PathBuf,
+    #[arg(required_unless_present = "suite")]
+    bundle: Option<PathBuf>,
     /// Output directory (created; existing files are replaced atomically).
+    /// With --suite: the scenes, fits, cached results, suite.json and
+    /// tables.md (rerunning resumes from the cached results).
     #[arg(long)]
     out: PathBuf,
+    /// Run the benchmark suite of this file (docs/suite.md) instead of
+    /// scoring one model.
+    #[arg(long, conflicts_with_all = ["model_dir", "bundle", "frames"])]
+    suite: Option<PathBuf>,
+    /// With --suite: also write the tables into this Markdown file between
+    /// the suite markers (replacing an earlier run's section).
+    #[arg(long, requires = "suite")]
+    results_md: Option<PathBuf>,
     /// Camera of the image metrics (the protocol uses camera 0).
     #[arg(long, default_value_t = 0)]
     camera: usize,
@@ -45,34 +59,106 @@ struct EvalArgs {
     lpips_threads: usize,
 }
 
+fn load_lpips(args: &EvalArgs) -> Result<(Option<Lpips>, String)> {
+    let (network, note) = Lpips::load_or_skip(
+        args.lpips_dir.as_deref(),
+        args.lpips_threads,
+        args.skip_lpips,
+    )
+    .with_context(|| {
+        format!("loading LPIPS (run `{MAKE_TARGET}`, or pass --skip-lpips to report it as null)")
+    })?;
+    if network.is_none() {
+        eprintln!("warning: LPIPS {note} (reported as null)");
+    }
+    Ok((network, note))
+}
+
 fn main() -> Result<()> {
     let args = EvalArgs::parse();
-    let model_json = args.model_dir.join("model.json");
-    let model: WorldModel = dm_bundle::read_json(&model_json)
-        .with_context(|| format!("reading the model in {}", args.model_dir.display()))?;
-    let bundle = Bundle::open(&args.bundle)
-        .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
+    match (&args.suite, &args.model_dir, &args.bundle) {
+        (Some(suite), _, _) => suite_main(&args, suite),
+        (None, Some(model_dir), Some(bundle)) => eval_main(&args, model_dir, bundle),
+        _ => bail!("give MODEL_DIR and BUNDLE, or --suite FILE"),
+    }
+}
 
-    let lpips_dir = args
-        .lpips_dir
-        .clone()
-        .unwrap_or_else(LpipsPaths::default_cache_dir);
-    let (mut lpips, lpips_note) = match LpipsPaths::in_dir(&lpips_dir)
-        .and_then(|paths| Ok((Lpips::load(&paths, args.lpips_threads)?, paths)))
-    {
-        Ok((network, paths)) => (Some(network), paths.model.display().to_string()),
-        Err(e) if args.skip_lpips => {
-            eprintln!("warning: LPIPS skipped (reported as null): {e}");
-            (None, format!("skipped: {e}"))
-        }
-        Err(e) => {
-            return Err(e).with_context(|| {
-                format!(
-                    "loading LPIPS (run `{MAKE_TARGET}`, or pass --skip-lpips to report it as null)"
-                )
-            });
-        }
-    };
+/// `dm-eval --suite FILE --out DIR [--results-md FILE]`.
+fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
+    let suite = Suite::load(suite_path)
+        .with_context(|| format!("reading suite {}", suite_path.display()))?;
+    let (mut lpips, _) = load_lpips(args)?;
+    let command = std::iter::once("dm-eval".to_owned())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let bar = ProgressBar::new((suite.scenes.len() * suite.variants.len()) as u64);
+    bar.set_style(
+        ProgressStyle::with_template("[{bar:30}] {pos}/{len} {elapsed} {prefix} {wide_msg}")?
+            .progress_chars("=> "),
+    );
+    let report = run_suite(
+        &suite,
+        &args.out,
+        lpips.as_mut(),
+        &command,
+        &mut |event| match event {
+            SuiteProgress::Scene { id, .. } => {
+                bar.set_prefix(format!("{id}: synthesising"));
+            }
+            SuiteProgress::Run {
+                scene,
+                variant,
+                index,
+                cached,
+                ..
+            } => {
+                bar.set_position(index as u64);
+                let note = if cached { " (cached)" } else { "" };
+                bar.set_prefix(format!("{scene} / {variant}{note}"));
+                bar.println(format!("{scene} / {variant}{note}"));
+            }
+            SuiteProgress::Detail(line) => bar.set_message(line.to_owned()),
+        },
+    )
+    .with_context(|| {
+        format!(
+            "running suite {} into {}",
+            suite_path.display(),
+            args.out.display()
+        )
+    })?;
+    bar.finish_and_clear();
+    let tables = dm_eval::suite::tables_markdown(&report);
+    print!("{tables}");
+    if let Some(results_md) = &args.results_md {
+        update_results_markdown(results_md, &tables)
+            .with_context(|| format!("writing the tables into {}", results_md.display()))?;
+    }
+    let diverged = report
+        .runs
+        .iter()
+        .filter(|r| r.status == dm_eval::suite::RunStatus::Diverged)
+        .count();
+    println!(
+        "\ndm-eval: {} runs ({} cached, {diverged} diverged) in {:.1} s; wrote {} and {}",
+        report.runs.len(),
+        report.cached_runs,
+        report.seconds,
+        args.out.join(dm_eval::suite::SUITE_JSON).display(),
+        args.out.join(dm_eval::suite::TABLES_MARKDOWN).display()
+    );
+    Ok(())
+}
+
+/// `dm-eval MODEL_DIR BUNDLE --out DIR`.
+fn eval_main(args: &EvalArgs, model_dir: &Path, bundle_dir: &Path) -> Result<()> {
+    let model_json = model_dir.join("model.json");
+    let model: WorldModel = dm_bundle::read_json(&model_json)
+        .with_context(|| format!("reading the model in {}", model_dir.display()))?;
+    let bundle = Bundle::open(bundle_dir)
+        .with_context(|| format!("reading bundle {}", bundle_dir.display()))?;
+    let (mut lpips, lpips_note) = load_lpips(args)?;
 
     let frames = args
         .frames
@@ -88,9 +174,9 @@ fn main() -> Result<()> {
     );
     let start = Instant::now();
     // The fitted splats when dm-appearance made them, else particle spheres.
-    let splats = if dm_appearance::store::has_appearance(&args.model_dir) {
-        let (gaussians, _) = dm_appearance::load_appearance(&args.model_dir, &model)
-            .with_context(|| format!("reading the splats in {}", args.model_dir.display()))?;
+    let splats = if dm_appearance::store::has_appearance(model_dir) {
+        let (gaussians, _) = dm_appearance::load_appearance(model_dir, &model)
+            .with_context(|| format!("reading the splats in {}", model_dir.display()))?;
         Some(gaussians)
     } else {
         None
@@ -122,8 +208,8 @@ fn main() -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
 
     let run = RunInfo {
-        bundle: args.bundle.display().to_string(),
-        model: args.model_dir.display().to_string(),
+        bundle: bundle_dir.display().to_string(),
+        model: model_dir.display().to_string(),
         camera: args.camera,
         camera_name: bundle.meta.cameras[args.camera].name.clone(),
         frames,

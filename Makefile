@@ -110,6 +110,8 @@ test: setup
 bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts nh
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts moce
+	@if [ -f $(OUT)/model/model.json ]; then ./target/release/dm-bench play --model $(OUT)/model; \
+	  else echo "dm-bench play skipped: no demo model in $(OUT)/model (make demo first)"; fi
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV)

@@ -2,7 +2,7 @@
 //! rendered from the same camera, at a few frames.
 
 use dm_bundle::Bundle;
-use dm_view::{Camera, RenderOptions, Splat, render, side_by_side};
+use dm_view::{Camera, Frame, RenderOptions, Splat, render, side_by_side};
 use image::RgbImage;
 
 /// A recorded camera as a renderer camera (the one conversion; callers add
@@ -31,6 +31,11 @@ pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle:
     })
 }
 
+/// Label of object splats in [`particle_frame`]'s label image.
+pub const OBJECT_LABEL: u8 = 1;
+/// Label of hand splats in [`particle_frame`]'s label image.
+pub const HAND_LABEL: u8 = 2;
+
 /// Renders particles (with their colours) and hand anchors (skin-coloured
 /// balls) from `camera` over a floor.
 pub fn render_particles(
@@ -42,6 +47,20 @@ pub fn render_particles(
     up: [f64; 3],
     floor_height: f64,
 ) -> RgbImage {
+    particle_frame(camera, positions, colors, radius, anchors, up, floor_height).to_rgb8()
+}
+
+/// [`render_particles`] with depth and labels ([`OBJECT_LABEL`],
+/// [`HAND_LABEL`]): what a bundle writer needs.
+pub fn particle_frame(
+    camera: &Camera,
+    positions: &[[f32; 3]],
+    colors: &[[f32; 3]],
+    radius: f32,
+    anchors: &[[f32; 3]],
+    up: [f64; 3],
+    floor_height: f64,
+) -> Frame {
     let mut splats: Vec<Splat> = positions
         .iter()
         .zip(colors)
@@ -49,17 +68,17 @@ pub fn render_particles(
             position,
             radius,
             color,
-            label: 1,
+            label: OBJECT_LABEL,
         })
         .collect();
     splats.extend(anchors.iter().map(|&position| Splat {
         position,
         radius: 0.009,
         color: [0.86, 0.66, 0.55],
-        label: 2,
+        label: HAND_LABEL,
     }));
     let options = RenderOptions::studio(up, floor_height);
-    render(camera, &splats, &options).to_rgb8()
+    render(camera, &splats, &options)
 }
 
 /// Two rows (observed, predicted) of camera `camera_index` at `frames`.

@@ -77,6 +77,32 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
+    /// The playground's frame (issue 9): one simulation frame of a fitted
+    /// model with a hand pulling (MPM + splat LBS + the frame message), then
+    /// a render of the main view at the page's default 640×480 by the
+    /// dm-splat CPU rasterizer (the page itself draws with WebGL on the
+    /// client's GPU, which is cheaper; this is the headless upper bound).
+    /// Prints `play_fps` = 1 / median(simulation + render).
+    Play {
+        /// Fitted model directory (splats used when present).
+        #[arg(long)]
+        model: std::path::PathBuf,
+        /// Timed frames after 3 warm-up frames.
+        #[arg(long, default_value_t = 40)]
+        frames: usize,
+        /// Grid of the live simulation (default: dm-play's, 20).
+        #[arg(long)]
+        grid: Option<usize>,
+        /// Simulated particles (default: dm-play's, 2500).
+        #[arg(long)]
+        particles: Option<usize>,
+        /// Substeps per frame before CFL refinement (default: the model's).
+        #[arg(long)]
+        substeps: Option<usize>,
+        /// The model's own grid, domain and particles (as fitted).
+        #[arg(long, conflicts_with_all = ["grid", "particles"])]
+        exact: bool,
+    },
 }
 
 fn main() -> Result<()> {
@@ -135,6 +161,26 @@ fn main() -> Result<()> {
             height,
             repeats,
         } => render_bench(gaussians, width, height, repeats)?,
+        Command::Play {
+            model,
+            frames,
+            grid,
+            particles,
+            substeps,
+            exact,
+        } => {
+            let base = if exact {
+                dm_play::PlayOptions::default()
+            } else {
+                dm_play::PlayOptions::interactive()
+            };
+            let options = dm_play::PlayOptions {
+                grid: grid.or(base.grid),
+                particles: particles.or(base.particles),
+                substeps: substeps.or(base.substeps),
+            };
+            play_bench(&model, frames, &options)?
+        }
     }
     Ok(())
 }
@@ -220,10 +266,6 @@ fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize) -> 
         forward.push(forward_s);
         checksum = grad_youngs.iter().map(|g| f64::from(*g)).sum::<f64>();
     }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     let (t, f) = (median(&mut total), median(&mut forward));
     println!("grad_window_s {t:.4}");
     eprintln!(
@@ -233,6 +275,91 @@ fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize) -> 
         (t - f) / f,
         rayon::current_num_threads()
     );
+    Ok(())
+}
+
+/// Median of timings (upper median for even counts).
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn play_bench(
+    model_dir: &std::path::Path,
+    frames: usize,
+    options: &dm_play::PlayOptions,
+) -> Result<()> {
+    use dm_play::{encode_frame, open_session};
+    let mut session = open_session(model_dir, options)
+        .with_context(|| format!("opening the model in {}", model_dir.display()))?;
+    // A hand grabs the object at its centre (picked from above) and moves
+    // it up and down: the load of a user pulling it around.
+    let view = session.view().clone();
+    let up = view.up;
+    let origin = [0, 1, 2].map(|a| view.centre[a] + up[a]);
+    let particle = session
+        .pick(origin, up.map(|c| -c))
+        .context("no particle under the object's centre to grab")?;
+    session.grab(0, particle)?;
+    let camera = &view.cameras[0];
+    let settings = dm_splat::RenderSettings::default();
+    let mut sim_ms = Vec::new();
+    let mut render_ms = Vec::new();
+    let mut total_ms = Vec::new();
+    for frame in 0..frames + 3 {
+        let direction = if (frame / 15) % 2 == 0 { 0.2 } else { -0.2 };
+        session.set_hand_velocity(0, up.map(|c| direction * c))?;
+        let start = Instant::now();
+        session.step().context("simulating a frame")?;
+        let message = encode_frame(&session);
+        std::hint::black_box(message);
+        let simulated = start.elapsed().as_secs_f64() * 1e3;
+        let image_pixels = match session.splats() {
+            Some(gaussians) => dm_splat::render(gaussians, camera, &settings)
+                .context("rendering the splats")?
+                .image()
+                .len(),
+            None => {
+                let positions = session.positions();
+                dm_model::preview::render_particles(
+                    camera,
+                    positions,
+                    &session.body().colors,
+                    session.body().splat_radius,
+                    &[],
+                    up,
+                    view.floor_height,
+                )
+                .len()
+            }
+        };
+        std::hint::black_box(image_pixels);
+        let total = start.elapsed().as_secs_f64() * 1e3;
+        if frame >= 3 {
+            sim_ms.push(simulated);
+            render_ms.push(total - simulated);
+            total_ms.push(total);
+        }
+    }
+    let state = session.state();
+    let sprites = session.sprites();
+    println!(
+        "play: {} particles, {} {}, grid {}^3, {} substeps per {:.1} ms frame, render {}x{}, {} threads",
+        state.particle_count,
+        sprites.count,
+        sprites.kind,
+        state.grid,
+        state.substeps_per_frame,
+        1e3 * state.frame_dt,
+        camera.width,
+        camera.height,
+        rayon::current_num_threads()
+    );
+    let total = median(&mut total_ms);
+    println!("play_sim_ms {:.2}", median(&mut sim_ms));
+    println!("play_render_ms {:.2}", median(&mut render_ms));
+    println!("play_frame_ms {total:.2}");
+    println!("play_fps {:.1}", 1e3 / total);
     Ok(())
 }
 
@@ -315,10 +442,6 @@ fn render_bench(count: usize, width: u32, height: u32, repeats: usize) -> Result
             grads.means.iter().map(|g| f64::from(g.norm())).sum::<f64>()
         );
     }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     println!("render_ms {:.2}", median(&mut forward_ms));
     println!("render_backward_ms {:.2}", median(&mut backward_ms));
     eprintln!(

@@ -171,7 +171,10 @@ pub fn carve_interior(
         }
     }
     let index = dm_mpm::neighbors::PointIndex::new(surface);
-    let counts = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / spacing).floor() as usize + 1);
+    // Cells of `spacing` covering [lo, hi], sampled at their centres. The
+    // tolerance keeps an extent that is a whole number of cells up to
+    // round-off (FMA or not) from gaining a cell centred outside the box.
+    let counts = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / spacing - 1e-9).ceil().max(1.0)) as usize);
     let mut out = Vec::new();
     for i in 0..counts[0] {
         for j in 0..counts[1] {

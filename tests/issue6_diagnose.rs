@@ -28,10 +28,18 @@ fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
         hidden.hidden, hidden.magnitude, hidden.cause, d.candidates
     );
     assert!(dir.path().join("hidden/diagnosis/report.md").is_file());
-    assert!(dir.path().join("hidden/diagnosis/extended_model/model.json").is_file());
+    assert!(
+        dir.path()
+            .join("hidden/diagnosis/extended_model/model.json")
+            .is_file()
+    );
     assert!(hidden.track_after < hidden.track_before);
 
     let (null, d) =
         run_scene(NULL_SEED, true, &dir.path().join("null"), &options).expect("null scene");
-    assert_eq!(null.cause, "none", "null scene named {}: {:?}", null.cause, d.candidates);
+    assert_eq!(
+        null.cause, "none",
+        "null scene named {}: {:?}",
+        null.cause, d.candidates
+    );
 }

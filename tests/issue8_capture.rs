@@ -51,7 +51,11 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
         .expect("bundle written");
     bundle.validate_images().expect("images valid");
     assert_eq!(bundle.meta.category, dm_bundle::Category::Linear);
-    assert!(bundle.tracks.object_point_count() >= 100, "{}", bundle.tracks.object_point_count());
+    assert!(
+        bundle.tracks.object_point_count() >= 100,
+        "{}",
+        bundle.tracks.object_point_count()
+    );
 
     let score = score_tracks(&out, &truth_bundle).expect("scores");
     assert!(
@@ -67,7 +71,8 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
     let outcomes = prep.run(Stage::Fill, &mut |_, _, _| {}).expect("rerun");
     assert!(outcomes.iter().all(|o| !o.ran), "{outcomes:?}");
     let again = dir.path().join("again");
-    prep.write_bundle(&again, false, &mut |_, _, _| {}).expect("rewritten");
+    prep.write_bundle(&again, false, &mut |_, _, _| {})
+        .expect("rewritten");
     let a = Bundle::open(&out).expect("first");
     let b = Bundle::open(&again).expect("second");
     assert_eq!(a.tracks, b.tracks);

@@ -101,7 +101,8 @@ fn issue9_recording_is_a_valid_bundle() {
         session.frame_dt(),
     )
     .expect("bundle written");
-    let bundle = dm_bundle::Bundle::open(&bundle_dir).expect("the recording reads back as a bundle");
+    let bundle =
+        dm_bundle::Bundle::open(&bundle_dir).expect("the recording reads back as a bundle");
     assert_eq!(bundle.frame_count(), 5);
     assert_eq!(bundle.meta.cameras.len(), 3);
     assert_eq!(bundle.meta.hands.len(), 2);
@@ -149,7 +150,10 @@ fn issue9_bad_options_and_commands_are_errors() {
     assert!(session.set_hand_velocity(2, [0.0; 3]).is_err());
     assert!(session.set_hand_velocity(0, [f64::NAN, 0.0, 0.0]).is_err());
     assert!(session.grab(0, usize::MAX).is_err());
-    let missing = open_session(&tiny.dir.path().join("nothing"), &PlayOptions::interactive())
-        .expect_err("missing model dir");
+    let missing = open_session(
+        &tiny.dir.path().join("nothing"),
+        &PlayOptions::interactive(),
+    )
+    .expect_err("missing model dir");
     assert!(missing.to_string().contains("model.json"), "{missing}");
 }

@@ -15,7 +15,10 @@ use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let out = PathBuf::from(args.first().ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?);
+    let out = PathBuf::from(
+        args.first()
+            .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?,
+    );
     let hidden: u64 = args.get(1).map_or(Ok(16), |s| s.parse())?;
     let null: u64 = args.get(2).map_or(Ok(4), |s| s.parse())?;
     let first: u64 = args.get(3).map_or(Ok(1000), |s| s.parse())?;
@@ -39,7 +42,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         i += 1;
     }
     for (seed, is_null) in jobs {
-        let dir = out.join(format!("{}{}", if is_null { "null" } else { "hidden" }, seed));
+        let dir = out.join(format!(
+            "{}{}",
+            if is_null { "null" } else { "hidden" },
+            seed
+        ));
         let start = std::time::Instant::now();
         match run_scene(seed, is_null, &dir, &options) {
             Ok((r, _)) => {

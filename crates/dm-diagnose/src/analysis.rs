@@ -252,7 +252,11 @@ pub fn region_errors(
     let mut out = Vec::new();
     type Key<'a> = Box<dyn Fn([f64; 3]) -> f64 + 'a>;
     let groupings: [(&str, [&str; 3], Key); 3] = [
-        ("height", ["low", "middle", "high"], Box::new(|p| dot(p, up))),
+        (
+            "height",
+            ["low", "middle", "high"],
+            Box::new(|p| dot(p, up)),
+        ),
         (
             "main axis",
             ["first third", "middle third", "last third"],

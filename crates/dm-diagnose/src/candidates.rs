@@ -155,7 +155,10 @@ pub fn apply(
                 .as_ref()
                 .map_or([0.0, 0.0, 1.0], |f| f.up);
             let (east, north) = horizontal_basis(up);
-            let (tilt, azimuth) = (get("tilt_deg").to_radians(), get("azimuth_deg").to_radians());
+            let (tilt, azimuth) = (
+                get("tilt_deg").to_radians(),
+                get("azimuth_deg").to_radians(),
+            );
             model.physics.gravity = [0, 1, 2].map(|a| {
                 g * (tilt.sin() * (azimuth.cos() * east[a] + azimuth.sin() * north[a])
                     - tilt.cos() * up[a])
@@ -246,7 +249,11 @@ pub fn trials(candidate: Candidate, base: &WorldModel, s: &Signatures) -> Vec<Tr
         Candidate::GroundTilt => {
             // Four azimuths starting from the mean horizontal residual's
             // direction (which noise can turn), one tilt; refined later.
-            let up = base.physics.floor.as_ref().map_or([0.0, 0.0, 1.0], |f| f.up);
+            let up = base
+                .physics
+                .floor
+                .as_ref()
+                .map_or([0.0, 0.0, 1.0], |f| f.up);
             let (east, north) = horizontal_basis(up);
             let h = s.horizontal_accel;
             let azimuth = dot(h, north).atan2(dot(h, east)).to_degrees();
@@ -265,9 +272,7 @@ pub fn trials(candidate: Candidate, base: &WorldModel, s: &Signatures) -> Vec<Tr
             } else {
                 vec![-3.0, 2.0, 4.0]
             };
-            lags.iter()
-                .map(|l| params(&[("lag_frames", *l)]))
-                .collect()
+            lags.iter().map(|l| params(&[("lag_frames", *l)])).collect()
         }
         Candidate::DensityVariation => {
             let axis = main_axis(&base.particles);
@@ -298,9 +303,7 @@ pub fn trials(candidate: Candidate, base: &WorldModel, s: &Signatures) -> Vec<Tr
 /// 1.5× (for a lag, ±1 frame) around it, other parameters unchanged.
 pub fn refinements(best: &Trial, base: &WorldModel) -> Vec<Trial> {
     let key = match best.candidate {
-        Candidate::AirDrag if best.parameters.contains_key("quadratic_per_m") => {
-            "quadratic_per_m"
-        }
+        Candidate::AirDrag if best.parameters.contains_key("quadratic_per_m") => "quadratic_per_m",
         Candidate::AirDrag => "linear_per_s",
         Candidate::FloorFriction => "coefficient",
         Candidate::Plasticity => "yield_stretch",
@@ -338,7 +341,10 @@ pub fn extent(points: &[[f64; 3]]) -> f64 {
     (0..3)
         .map(|a| {
             let lo = points.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min);
-            let hi = points.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max);
+            let hi = points
+                .iter()
+                .map(|p| p[a])
+                .fold(f64::NEG_INFINITY, f64::max);
             hi - lo
         })
         .fold(0.0, f64::max)

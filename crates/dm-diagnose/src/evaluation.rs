@@ -57,7 +57,10 @@ pub struct SceneResult {
 pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) {
     let (preset, effect) = draw_hidden_effect(seed);
     let (preset, effect) = if null {
-        ([Preset::Rope, Preset::Cloth, Preset::Toy][(seed % 3) as usize], None)
+        (
+            [Preset::Rope, Preset::Cloth, Preset::Toy][(seed % 3) as usize],
+            None,
+        )
     } else {
         (preset, Some(effect))
     };
@@ -79,18 +82,30 @@ pub fn run_scene(
     let model = dir.join("model");
     let out = dir.join("diagnosis");
     if !scene.join("bundle.json").is_file() {
-        generate(&config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| {
-            DiagnoseError::Input {
-                path: scene.clone(),
-                problem: e.to_string(),
-            }
+        generate(&config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| DiagnoseError::Input {
+            path: scene.clone(),
+            problem: e.to_string(),
         })?;
     }
     let bundle = dm_bundle::Bundle::open(&scene)?;
     if !model.join("model.json").is_file() {
-        run_fit(&bundle, &quick_fit_options(), &model, false, None, &mut |_| {})?;
+        run_fit(
+            &bundle,
+            &quick_fit_options(),
+            &model,
+            false,
+            None,
+            &mut |_| {},
+        )?;
     }
-    let d = diagnose(&model, &scene, &out, Some(&truth), options, &mut |_, _, _| {})?;
+    let d = diagnose(
+        &model,
+        &scene,
+        &out,
+        Some(&truth),
+        options,
+        &mut |_, _, _| {},
+    )?;
     let result = SceneResult {
         seed,
         preset: config.preset.name().into(),
@@ -138,8 +153,14 @@ pub fn confusion_markdown(results: &[SceneResult]) -> String {
         }
         s.push_str(&format!("| {row} |"));
         for col in &names {
-            let c = counts.get(&(row.clone(), col.clone())).copied().unwrap_or(0);
-            s.push_str(&format!(" {} |", if c == 0 { String::new() } else { c.to_string() }));
+            let c = counts
+                .get(&(row.clone(), col.clone()))
+                .copied()
+                .unwrap_or(0);
+            s.push_str(&format!(
+                " {} |",
+                if c == 0 { String::new() } else { c.to_string() }
+            ));
         }
         let correct = in_row.iter().filter(|r| r.cause == *row).count();
         let gains: Vec<f64> = in_row
@@ -150,7 +171,10 @@ pub fn confusion_markdown(results: &[SceneResult]) -> String {
         let gain = if gains.is_empty() || row == "none" {
             "—".to_string()
         } else {
-            format!("{:.0} %", 100.0 * gains.iter().sum::<f64>() / gains.len() as f64)
+            format!(
+                "{:.0} %",
+                100.0 * gains.iter().sum::<f64>() / gains.len() as f64
+            )
         };
         s.push_str(&format!(" {correct}/{} | {gain} |\n", in_row.len()));
     }

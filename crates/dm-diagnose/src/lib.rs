@@ -210,7 +210,11 @@ pub fn diagnose(
     let (base, base_run) = score_model(&model, &bundle)?;
     let split = bundle.meta.split;
     let matched = match_tracks(&bundle, &base_run.positions);
-    let up = model.physics.floor.as_ref().map_or([0.0, 0.0, 1.0], |f| f.up);
+    let up = model
+        .physics
+        .floor
+        .as_ref()
+        .map_or([0.0, 0.0, 1.0], |f| f.up);
     let floor_height = model.physics.floor.as_ref().map_or(0.0, |f| f.height);
     let axis = main_axis(&model.particles);
     let per_track_test = per_track_error(&matched, split.test);
@@ -301,12 +305,13 @@ pub fn diagnose(
     let mut extended: Option<(WorldModel, Scored, BTreeMap<String, f64>)> = None;
     let mut refit = None;
     if named {
-        let (trial, scored) = best_per_candidate
-            .remove(cause.as_str())
-            .ok_or_else(|| DiagnoseError::Input {
-                path: model_path.clone(),
-                problem: "internal: the named candidate has no trial".into(),
-            })?;
+        let (trial, scored) =
+            best_per_candidate
+                .remove(cause.as_str())
+                .ok_or_else(|| DiagnoseError::Input {
+                    path: model_path.clone(),
+                    problem: "internal: the named candidate has no trial".into(),
+                })?;
         let mut best_trial = (trial, scored);
         let refine = refinements(&best_trial.0, &model);
         let effect_trials = refine.len();
@@ -480,7 +485,10 @@ fn refit_material(
         progress("refitting the material", done, options.refit_iters);
     });
     if let Err(e) = result {
-        return Ok((blank(&format!("material refit failed, kept the effect fit: {e}")), None));
+        return Ok((
+            blank(&format!("material refit failed, kept the effect fit: {e}")),
+            None,
+        ));
     }
     let after = train_loss(&refitted, bundle, frames)?;
     Ok((
@@ -538,7 +546,11 @@ fn compare_truth(
             let t = get(tk)?;
             let f = fitted.get(*fk)? * scale;
             // The density gradient's sign depends on the axis direction; compare magnitudes.
-            let f = if *fk == "heavy_end_excess" { f.abs() } else { f };
+            let f = if *fk == "heavy_end_excess" {
+                f.abs()
+            } else {
+                f
+            };
             (t != 0.0).then(|| f / t - 1.0)
         })
     } else {

@@ -88,7 +88,9 @@ impl Frame {
         let span = |it: &mut dyn Iterator<Item = f64>| {
             let (lo, hi) = it
                 .filter(|v| v.is_finite())
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| (l.min(v), h.max(v)));
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                    (l.min(v), h.max(v))
+                });
             if !lo.is_finite() {
                 (0.0, 1.0)
             } else if hi - lo < 1e-12 {
@@ -122,7 +124,11 @@ fn canvas(w: u32, h: u32) -> RgbImage {
 
 /// Robust symmetric range: the 98th percentile of |values|.
 fn robust_abs_max(values: &[f64]) -> f64 {
-    let mut a: Vec<f64> = values.iter().filter(|v| v.is_finite()).map(|v| v.abs()).collect();
+    let mut a: Vec<f64> = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .map(|v| v.abs())
+        .collect();
     if a.is_empty() {
         return 1.0;
     }
@@ -197,12 +203,7 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
     let across: Vec<f64> = first.iter().map(|q| dot(*q, cross_axis)).collect();
     let flat = extent(&heights) < 0.3 * extent(&across);
     let vertical = if flat { &across } else { &heights };
-    let mut frame = Frame::new(
-        560,
-        420,
-        along.iter().copied(),
-        vertical.iter().copied(),
-    );
+    let mut frame = Frame::new(560, 420, along.iter().copied(), vertical.iter().copied());
     // Equal scale on both axes (a rope stays a rope): widen the narrower
     // range about its centre to the canvas's aspect.
     let (sx, sy) = (frame.x.1 - frame.x.0, frame.y.1 - frame.y.0);
@@ -223,7 +224,11 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         dot_at(&mut img, x, y, 4, heat(errs[k] / emax));
     }
     for h in dm_model::hand_anchors(p.bundle, 0) {
-        let v = if flat { dot(h, cross_axis) } else { dot(h, p.up) };
+        let v = if flat {
+            dot(h, cross_axis)
+        } else {
+            dot(h, p.up)
+        };
         let (x, y) = frame.px(dot(h, p.axis), v);
         dot_at(&mut img, x, y, 6, [20, 20, 20]);
     }
@@ -249,7 +254,13 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         .samples
         .iter()
         .zip(&speeds)
-        .map(|(s, v)| if *v > 0.0 { dot(s.residual, s.velocity) / v } else { 0.0 })
+        .map(|(s, v)| {
+            if *v > 0.0 {
+                dot(s.residual, s.velocity) / v
+            } else {
+                0.0
+            }
+        })
         .collect();
     let amax = robust_abs_max(&along_v);
     let vmax = robust_abs_max(&speeds);
@@ -271,7 +282,12 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         }
         // The fitted drag line r = −k v.
         let k = p.diagnosis.signatures.drag_rate_per_s;
-        line(&mut img, left.px(0.0, 0.0), left.px(vmax, (-k * vmax).clamp(-amax, amax)), RED);
+        line(
+            &mut img,
+            left.px(0.0, 0.0),
+            left.px(vmax, (-k * vmax).clamp(-amax, amax)),
+            RED,
+        );
     }
     let (east, north) = crate::candidates::horizontal_basis(p.up);
     let hx: Vec<f64> = p.samples.iter().map(|s| dot(s.residual, east)).collect();
@@ -329,14 +345,23 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         x: (0.0, cands.len().max(1) as f64),
         y: (-smax.min(0.3), smax),
     };
-    line(&mut img, frame.px(0.0, 0.0), frame.px(cands.len() as f64, 0.0), GREY);
+    line(
+        &mut img,
+        frame.px(0.0, 0.0),
+        frame.px(cands.len() as f64, 0.0),
+        GREY,
+    );
     let (tx0, ty) = frame.px(0.0, p.diagnosis.threshold);
     let (tx1, _) = frame.px(cands.len() as f64, p.diagnosis.threshold);
     for x in (tx0 as i64..tx1 as i64).step_by(4) {
         dot_at(&mut img, x as f64, ty, 0, GREY);
     }
     for (i, c) in cands.iter().enumerate() {
-        let color = if c.name == p.diagnosis.cause { RED } else { BLUE };
+        let color = if c.name == p.diagnosis.cause {
+            RED
+        } else {
+            BLUE
+        };
         let s = c.score.clamp(-smax.min(0.3), smax);
         let (x0, y0) = frame.px(i as f64 + 0.15, 0.0);
         let (x1, y1) = frame.px(i as f64 + 0.85, s);

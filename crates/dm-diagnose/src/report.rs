@@ -126,14 +126,23 @@ pub(crate) fn write_report(
     let _ = writeln!(s, "| region (frame-0 thirds) | test track error | points |");
     let _ = writeln!(s, "|---|---|---|");
     for r in &d.regions_test {
-        let _ = writeln!(s, "| {} | {} | {} |", r.region, mm(r.mean_error_m), r.points);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} |",
+            r.region,
+            mm(r.mean_error_m),
+            r.points
+        );
     }
     let _ = writeln!(s);
     for p in plots.iter().filter(|p| p.file != "candidates.png") {
         let _ = writeln!(s, "![{}]({})\n\n{}\n", p.file, p.file, p.caption);
     }
     if base.residual_dv.is_empty() {
-        let _ = writeln!(s, "The fitted model has no neural residual (physics only).\n");
+        let _ = writeln!(
+            s,
+            "The fitted model has no neural residual (physics only).\n"
+        );
     }
     if let Some(r) = &d.refit {
         let _ = writeln!(

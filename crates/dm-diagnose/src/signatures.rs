@@ -91,7 +91,12 @@ pub fn slope(xs: &[f64], ys: &[f64]) -> (f64, f64) {
     if sxx <= 0.0 {
         return (0.0, 0.0);
     }
-    let b = xs.iter().zip(ys).map(|(x, y)| (x - mx) * (y - my)).sum::<f64>() / sxx;
+    let b = xs
+        .iter()
+        .zip(ys)
+        .map(|(x, y)| (x - mx) * (y - my))
+        .sum::<f64>()
+        / sxx;
     let rss: f64 = xs
         .iter()
         .zip(ys)

@@ -36,7 +36,15 @@ fn empty_matched() -> Matched {
 
 fn sig(samples: &[AccelSample]) -> dm_diagnose::signatures::Signatures {
     let hand = vec![[0.0; 3]; 10];
-    signatures(samples, &empty_matched(), &[0], &hand, [0.0, 0.0, 1.0], 0.0, [1.0, 0.0, 0.0])
+    signatures(
+        samples,
+        &empty_matched(),
+        &[0],
+        &hand,
+        [0.0, 0.0, 1.0],
+        0.0,
+        [1.0, 0.0, 0.0],
+    )
 }
 
 #[test]
@@ -57,7 +65,11 @@ fn issue6_drag_signature_recovers_the_rate_and_ignores_noise() {
 fn issue6_floor_friction_signature_only_counts_points_on_the_floor() {
     // Horizontal drag on points at the floor: the floor rate sees it.
     let on_floor = sig(&drag_samples(4.0, 0.5, 0.005));
-    assert!((on_floor.floor_rate_per_s - 4.0).abs() < 0.3, "{}", on_floor.floor_rate_per_s);
+    assert!(
+        (on_floor.floor_rate_per_s - 4.0).abs() < 0.3,
+        "{}",
+        on_floor.floor_rate_per_s
+    );
     assert!(on_floor.floor_t > 10.0);
     // The same residual 20 cm up: no floor samples, no floor signature.
     let above = sig(&drag_samples(4.0, 0.5, 0.2));
@@ -91,7 +103,11 @@ fn issue6_density_signature_sees_sag_growing_along_the_axis() {
                 frame: i / 20,
                 track: i % 20,
                 velocity: [0.0; 3],
-                residual: [0.3 * noise(i + 9), 0.3 * noise(i + 19), -4.0 * x + 0.5 * noise(i + 29)],
+                residual: [
+                    0.3 * noise(i + 9),
+                    0.3 * noise(i + 19),
+                    -4.0 * x + 0.5 * noise(i + 29),
+                ],
                 position: [x, 0.0, 0.1],
             }
         })
@@ -121,6 +137,10 @@ fn issue6_confidence_and_geometry_helpers() {
     assert!(confidence(0.0, 0.0, 0.1) > 0.99);
     let (e, n) = horizontal_basis([0.0, 0.0, 1.0]);
     assert_eq!((e, n), ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]));
-    let axis = main_axis(&(0..50).map(|i| [i as f64 * 0.01, 0.001 * noise(i), 0.0]).collect::<Vec<_>>());
+    let axis = main_axis(
+        &(0..50)
+            .map(|i| [i as f64 * 0.01, 0.001 * noise(i), 0.0])
+            .collect::<Vec<_>>(),
+    );
     assert!(axis[0].abs() > 0.99);
 }

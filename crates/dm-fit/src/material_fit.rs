@@ -151,8 +151,11 @@ pub const RESIDUAL_REGULARISER: f64 = 1e-3;
 /// particle positions at the end of that frame; returns its value and its
 /// gradient with respect to those positions.
 pub trait FrameTerm {
-    fn frame(&mut self, frame: usize, positions: &[[f64; 3]])
-    -> Result<(f64, Vec<[f64; 3]>), FitError>;
+    fn frame(
+        &mut self,
+        frame: usize,
+        positions: &[[f64; 3]],
+    ) -> Result<(f64, Vec<[f64; 3]>), FitError>;
 }
 
 /// Gradients of the train loss.
@@ -333,8 +336,13 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let (loss, grads) =
-        loss_and_gradient(model, bundle, fit_frames(bundle, config), config.window, extra)?;
+    let (loss, grads) = loss_and_gradient(
+        model,
+        bundle,
+        fit_frames(bundle, config),
+        config.window,
+        extra,
+    )?;
     let mut all_grads = to_param_set(&grads.patches)?;
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();

@@ -11,8 +11,8 @@
 //! object pixels as observed, every other pixel the renderer background,
 //! hand pixels excluded from the loss.
 
-use dm_appearance::fit::frame_view;
 use dm_appearance::SplatFollower;
+use dm_appearance::fit::frame_view;
 use dm_bundle::Bundle;
 use dm_splat::fit::{FitView, view_loss};
 use dm_splat::lbs_backward::skin_means_vjp;
@@ -74,7 +74,12 @@ impl<'a> RgbTerm<'a> {
     }
 
     fn view(&self, camera: usize, frame: usize) -> Result<FitView, FitError> {
-        Ok(frame_view(self.bundle, camera, frame, self.settings.background)?)
+        Ok(frame_view(
+            self.bundle,
+            camera,
+            frame,
+            self.settings.background,
+        )?)
     }
 }
 
@@ -83,15 +88,24 @@ fn appearance_error(e: dm_splat::SplatError) -> FitError {
 }
 
 impl FrameTerm for RgbTerm<'_> {
-    fn frame(&mut self, frame: usize, positions: &[[f64; 3]]) -> Result<(f64, Vec<[f64; 3]>), FitError> {
-        let binding = self.follower.advance_f64(positions).map_err(appearance_error)?;
+    fn frame(
+        &mut self,
+        frame: usize,
+        positions: &[[f64; 3]],
+    ) -> Result<(f64, Vec<[f64; 3]>), FitError> {
+        let binding = self
+            .follower
+            .advance_f64(positions)
+            .map_err(appearance_error)?;
         let gaussians = self.follower.gaussians();
         let mut value = 0.0;
         let mut grad_means = vec![Vector3::<f64>::zeros(); gaussians.len()];
         for &camera in self.cameras {
             let view = self.view(camera, frame)?;
-            let forward = render(gaussians, &view.camera, &self.settings).map_err(appearance_error)?;
-            let rendered: Vec<[f64; 3]> = forward.image().iter().map(|p| p.map(f64::from)).collect();
+            let forward =
+                render(gaussians, &view.camera, &self.settings).map_err(appearance_error)?;
+            let rendered: Vec<[f64; 3]> =
+                forward.image().iter().map(|p| p.map(f64::from)).collect();
             let loss = view_loss(&rendered, &view, self.settings.background, 0.0);
             self.l1_sum += loss.l1;
             self.terms += 1;
@@ -101,12 +115,21 @@ impl FrameTerm for RgbTerm<'_> {
                 .iter()
                 .map(|g| g.map(|v| (v * self.scale) as f32))
                 .collect();
-            let grads = render_backward(gaussians, &view.camera, &self.settings, &forward, &grad_image)
-                .map_err(appearance_error)?;
+            let grads = render_backward(
+                gaussians,
+                &view.camera,
+                &self.settings,
+                &forward,
+                &grad_image,
+            )
+            .map_err(appearance_error)?;
             for (sum, g) in grad_means.iter_mut().zip(&grads.means) {
                 *sum += g.map(f64::from);
             }
         }
-        Ok((value, skin_means_vjp(&binding, &grad_means, positions.len())))
+        Ok((
+            value,
+            skin_means_vjp(&binding, &grad_means, positions.len()),
+        ))
     }
 }

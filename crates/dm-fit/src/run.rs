@@ -285,8 +285,7 @@ pub fn run_fit(
                         let appearance_options =
                             AppearanceOptions::for_cameras(bundle.meta.cameras.len());
                         let (gaussians, record) =
-                            fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})
-                                ?;
+                            fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})?;
                         save_appearance(out, &gaussians, &record)?;
                         progress(&format!(
                             "stage 3: {} Gaussians, frame-0 PSNR {:.1} dB (training cameras)",
@@ -294,8 +293,7 @@ pub fn run_fit(
                         ));
                         (gaussians, record.train_cameras)
                     } else {
-                        let (gaussians, record) =
-                            load_appearance(out, &state.model)?;
+                        let (gaussians, record) = load_appearance(out, &state.model)?;
                         (gaussians, record.train_cameras)
                     };
                     let config = material_config(options, options.rgb_iters);

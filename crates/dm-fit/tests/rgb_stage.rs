@@ -51,8 +51,15 @@ fn issue7_rgb_term_gradient_matches_finite_differences_along_a_translation() {
     let cameras = [0usize, 1];
     let (gaussians, _) = initial_gaussians(&model, &bundle, &cameras).expect("gaussians");
     let value_and_grad = |offset: [f64; 3]| {
-        let mut term = RgbTerm::new(&bundle, gaussians.clone(), &model.particles, &cameras, 1.0, 1)
-            .expect("term");
+        let mut term = RgbTerm::new(
+            &bundle,
+            gaussians.clone(),
+            &model.particles,
+            &cameras,
+            1.0,
+            1,
+        )
+        .expect("term");
         let moved: Vec<[f64; 3]> = model
             .particles
             .iter()
@@ -71,10 +78,15 @@ fn issue7_rgb_term_gradient_matches_finite_differences_along_a_translation() {
         // wherever a rendered channel crosses its target, and a two-point
         // difference across one is off by ±10 % at this image size; the
         // regression averages the kinks out.
-        let steps: Vec<f64> = (-FD_POINTS..=FD_POINTS).map(|k| k as f64 * FD_STEP).collect();
+        let steps: Vec<f64> = (-FD_POINTS..=FD_POINTS)
+            .map(|k| k as f64 * FD_STEP)
+            .collect();
         let numeric = steps.iter().map(|&h| h * at(h)).sum::<f64>()
             / steps.iter().map(|h| h * h).sum::<f64>();
-        assert!(numeric.abs() > 1e-3, "the shift must change the loss ({numeric})");
+        assert!(
+            numeric.abs() > 1e-3,
+            "the shift must change the loss ({numeric})"
+        );
         let error = (numeric - analytic).abs() / numeric.abs();
         assert!(
             error < FD_REL_TOL,

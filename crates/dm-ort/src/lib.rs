@@ -54,9 +54,10 @@ pub fn dylib_path(cache_dir: &Path) -> Result<PathBuf, RuntimeError> {
         Some(path) if !path.is_empty() => PathBuf::from(path),
         _ => {
             let record = cache_dir.join(DYLIB_RECORD_FILE);
-            let text = std::fs::read_to_string(&record).map_err(|_| RuntimeError::MissingRecord {
-                path: record.clone(),
-            })?;
+            let text =
+                std::fs::read_to_string(&record).map_err(|_| RuntimeError::MissingRecord {
+                    path: record.clone(),
+                })?;
             if text.trim().is_empty() {
                 return Err(RuntimeError::EmptyRecord { path: record });
             }

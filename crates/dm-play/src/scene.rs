@@ -43,7 +43,9 @@ pub struct SceneView {
 impl SceneView {
     pub fn new(particles: &[[f64; 3]], physics: &PhysicsConfig) -> Result<Self, PlayError> {
         if particles.is_empty() {
-            return Err(PlayError::InvalidModel("model.json has no particles".into()));
+            return Err(PlayError::InvalidModel(
+                "model.json has no particles".into(),
+            ));
         }
         let (lo, hi) = bounds(particles);
         let centre = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
@@ -60,7 +62,9 @@ impl SceneView {
         let margin = (physics.wall_cells as f64 + 1.0) * physics.dx();
         let hand_box = (
             physics.domain_origin.map(|o| o + margin),
-            physics.domain_origin.map(|o| o + physics.domain_size - margin),
+            physics
+                .domain_origin
+                .map(|o| o + physics.domain_size - margin),
         );
         let radius = 0.5 * extent / (0.5 * FOV_DEG.to_radians()).tan() * 1.6;
         let target = Point3::from(centre);
@@ -186,9 +190,7 @@ impl Sprites {
                 .iter()
                 .map(|s| 2.0 * ((s.x + s.y + s.z) / 3.0).exp())
                 .collect(),
-            opacities: (0..gaussians.len())
-                .map(|i| gaussians.opacity(i))
-                .collect(),
+            opacities: (0..gaussians.len()).map(|i| gaussians.opacity(i)).collect(),
             particle,
         }
     }

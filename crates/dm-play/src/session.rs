@@ -222,11 +222,7 @@ impl Session {
             physics.clone(),
             &body.particles,
             body.particle_volume,
-            ParticleMaterial::from_fields(
-                &youngs,
-                &poisson,
-                &expert_weights,
-            ),
+            ParticleMaterial::from_fields(&youngs, &poisson, &expert_weights),
             model.actuator,
         )?;
         let positions = to_f32(&body.particles);
@@ -274,7 +270,9 @@ impl Session {
 
     /// The splats where they are now (`None`: the model has none).
     pub fn splats(&self) -> Option<&Gaussians<f32>> {
-        self.splats.as_ref().map(|(_, follower)| follower.gaussians())
+        self.splats
+            .as_ref()
+            .map(|(_, follower)| follower.gaussians())
     }
 
     /// Sprite centres now, flat xyz (splat means or particle positions).
@@ -461,9 +459,10 @@ impl Session {
     /// grasps the particles within the grasp radius at the next frame
     /// (a hand already holding lets go first).
     pub fn grab(&mut self, hand: usize, particle: usize) -> Result<(), PlayError> {
-        let p = *self.positions.get(particle).ok_or_else(|| {
-            PlayError::InvalidCommand(format!("no particle {particle}"))
-        })?;
+        let p = *self
+            .positions
+            .get(particle)
+            .ok_or_else(|| PlayError::InvalidCommand(format!("no particle {particle}")))?;
         let was_attached = self.hand_mut(hand)?.attached;
         let h = self.hand_mut(hand)?;
         h.position = p.map(f64::from);
@@ -572,13 +571,8 @@ impl Session {
 
     pub fn state(&self) -> SessionState {
         let n = self.positions.len().max(1) as f64;
-        let centroid = [0, 1, 2].map(|a| {
-            self.positions
-                .iter()
-                .map(|p| f64::from(p[a]))
-                .sum::<f64>()
-                / n
-        });
+        let centroid =
+            [0, 1, 2].map(|a| self.positions.iter().map(|p| f64::from(p[a])).sum::<f64>() / n);
         SessionState {
             frame: self.frame(),
             particle_count: self.positions.len(),

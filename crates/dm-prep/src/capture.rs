@@ -58,10 +58,18 @@ impl Calibration {
 
     fn validate(&self, path: &Path) -> Result<(), CaptureError> {
         if self.format != CAPTURE_FORMAT {
-            return Err(field_error(path, "format", format!("must be \"{CAPTURE_FORMAT}\"")));
+            return Err(field_error(
+                path,
+                "format",
+                format!("must be \"{CAPTURE_FORMAT}\""),
+            ));
         }
         if self.version != CAPTURE_VERSION {
-            return Err(field_error(path, "version", format!("must be {CAPTURE_VERSION}")));
+            return Err(field_error(
+                path,
+                "version",
+                format!("must be {CAPTURE_VERSION}"),
+            ));
         }
         if self.depth_unit != "millimetres" {
             return Err(field_error(path, "depth_unit", "must be \"millimetres\""));
@@ -198,7 +206,11 @@ impl Capture {
         let path = depth_path(&self.dir, &camera.name, t);
         let image = image::open(&path).map_err(|e| field_error(&path, "png", e.to_string()))?;
         let image::DynamicImage::ImageLuma16(depth) = image else {
-            return Err(field_error(&path, "colour_type", "depth must be 16-bit grey (millimetres)"));
+            return Err(field_error(
+                &path,
+                "colour_type",
+                "depth must be 16-bit grey (millimetres)",
+            ));
         };
         if depth.dimensions() != (camera.width, camera.height) {
             return Err(field_error(
@@ -217,7 +229,13 @@ impl Capture {
         Ok(depth
             .into_raw()
             .into_iter()
-            .map(|mm| if mm == 0 { f32::NAN } else { f32::from(mm) / 1000.0 })
+            .map(|mm| {
+                if mm == 0 {
+                    f32::NAN
+                } else {
+                    f32::from(mm) / 1000.0
+                }
+            })
             .collect())
     }
 }
@@ -239,7 +257,11 @@ impl CaptureWriter {
     /// video per camera.
     pub fn create(final_dir: &Path, calibration: Calibration) -> Result<Self, CaptureError> {
         if final_dir.exists() {
-            return Err(field_error(final_dir, "file", "already exists; remove it first"));
+            return Err(field_error(
+                final_dir,
+                "file",
+                "already exists; remove it first",
+            ));
         }
         calibration.validate(&final_dir.join(CALIBRATION_FILE))?;
         let mut name = final_dir.file_name().unwrap_or_default().to_os_string();
@@ -285,7 +307,9 @@ impl CaptureWriter {
             .map(|&d| dm_bundle::depth_m_to_png_mm(d))
             .collect();
         let image = ImageBuffer::<Luma<u16>, Vec<u16>>::from_raw(camera.width, camera.height, mm)
-            .ok_or_else(|| field_error(&path, "size", "depth buffer does not match the camera"))?;
+            .ok_or_else(|| {
+            field_error(&path, "size", "depth buffer does not match the camera")
+        })?;
         dm_bundle::write_file_atomic(&path, |tmp| {
             image
                 .save_with_format(tmp, image::ImageFormat::Png)
@@ -401,14 +425,26 @@ mod tests {
     #[test]
     fn bad_calibrations_name_the_file_and_field() {
         let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>); 4] = [
-            ("cameras[0].fx", Box::new(|v| {
-                v["cameras"][0].as_object_mut().expect("object").remove("fx");
-            })),
+            (
+                "cameras[0].fx",
+                Box::new(|v| {
+                    v["cameras"][0]
+                        .as_object_mut()
+                        .expect("object")
+                        .remove("fx");
+                }),
+            ),
             ("fps", Box::new(|v| v["fps"] = serde_json::json!(-1.0))),
-            ("depth_unit", Box::new(|v| v["depth_unit"] = serde_json::json!("metres"))),
-            ("frame_count", Box::new(|v| {
-                v.as_object_mut().expect("object").remove("frame_count");
-            })),
+            (
+                "depth_unit",
+                Box::new(|v| v["depth_unit"] = serde_json::json!("metres")),
+            ),
+            (
+                "frame_count",
+                Box::new(|v| {
+                    v.as_object_mut().expect("object").remove("frame_count");
+                }),
+            ),
         ];
         for (field, break_it) in cases {
             let mut json = calibration_json();
@@ -424,7 +460,13 @@ mod tests {
     fn a_missing_depth_frame_names_its_file() {
         let (dir, result) = open_with(&calibration_json());
         let capture = result.expect("opens");
-        let message = capture.read_depth_m(0, 1).expect_err("no depth").to_string();
-        assert!(message.contains(&depth_path(dir.path(), "cam0", 1).display().to_string()), "{message}");
+        let message = capture
+            .read_depth_m(0, 1)
+            .expect_err("no depth")
+            .to_string();
+        assert!(
+            message.contains(&depth_path(dir.path(), "cam0", 1).display().to_string()),
+            "{message}"
+        );
     }
 }

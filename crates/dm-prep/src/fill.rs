@@ -107,9 +107,16 @@ pub fn fill_sheet(surface: &ColoredPoints, spacing: f64) -> ColoredPoints {
             let pos = v.position();
             [pos.x, pos.y]
         });
-        let (min_x, max_x) = (q[0][0].min(q[1][0]).min(q[2][0]), q[0][0].max(q[1][0]).max(q[2][0]));
-        let (min_y, max_y) = (q[0][1].min(q[1][1]).min(q[2][1]), q[0][1].max(q[1][1]).max(q[2][1]));
-        let det = (q[1][1] - q[2][1]) * (q[0][0] - q[2][0]) + (q[2][0] - q[1][0]) * (q[0][1] - q[2][1]);
+        let (min_x, max_x) = (
+            q[0][0].min(q[1][0]).min(q[2][0]),
+            q[0][0].max(q[1][0]).max(q[2][0]),
+        );
+        let (min_y, max_y) = (
+            q[0][1].min(q[1][1]).min(q[2][1]),
+            q[0][1].max(q[1][1]).max(q[2][1]),
+        );
+        let det =
+            (q[1][1] - q[2][1]) * (q[0][0] - q[2][0]) + (q[2][0] - q[1][0]) * (q[0][1] - q[2][1]);
         if det.abs() < 1e-18 {
             continue;
         }
@@ -118,15 +125,21 @@ pub fn fill_sheet(surface: &ColoredPoints, spacing: f64) -> ColoredPoints {
             let mut gy = (min_y / spacing).ceil() as i64;
             while (gy as f64) * spacing <= max_y {
                 let (x, y) = (gx as f64 * spacing, gy as f64 * spacing);
-                let l0 = ((q[1][1] - q[2][1]) * (x - q[2][0]) + (q[2][0] - q[1][0]) * (y - q[2][1])) / det;
-                let l1 = ((q[2][1] - q[0][1]) * (x - q[2][0]) + (q[0][0] - q[2][0]) * (y - q[2][1])) / det;
+                let l0 = ((q[1][1] - q[2][1]) * (x - q[2][0])
+                    + (q[2][0] - q[1][0]) * (y - q[2][1]))
+                    / det;
+                let l1 = ((q[2][1] - q[0][1]) * (x - q[2][0])
+                    + (q[0][0] - q[2][0]) * (y - q[2][1]))
+                    / det;
                 let l2 = 1.0 - l0 - l1;
                 // Half-open edges so a lattice point on a shared edge is taken once.
                 if l0 >= 0.0 && l1 >= 0.0 && l2 > 0.0 {
                     let point = p[0] * l0 + p[1] * l1 + p[2] * l2;
                     out.points.push([point.x, point.y, point.z]);
                     out.colors.push(std::array::from_fn(|a| {
-                        (f64::from(c[0][a]) * l0 + f64::from(c[1][a]) * l1 + f64::from(c[2][a]) * l2) as f32
+                        (f64::from(c[0][a]) * l0
+                            + f64::from(c[1][a]) * l1
+                            + f64::from(c[2][a]) * l2) as f32
                     }));
                 }
                 gy += 1;
@@ -252,7 +265,9 @@ mod tests {
         let mut cloud = ColoredPoints::default();
         let mut state = 12345u64;
         let mut random = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (state >> 11) as f64 / (1u64 << 53) as f64
         };
         for _ in 0..3000 {
@@ -264,9 +279,16 @@ mod tests {
         let sheet = fill_sheet(&cloud, spacing);
         // Area 0.04 m² at one sample per spacing²: ~400 samples (the border
         // strip lost to the Delaunay hull of random points is small).
-        assert!((340..=420).contains(&sheet.points.len()), "{}", sheet.points.len());
+        assert!(
+            (340..=420).contains(&sheet.points.len()),
+            "{}",
+            sheet.points.len()
+        );
         let (min, max) = nearest_gap_stats(&sheet.points);
-        assert!(min > 0.99 * spacing && max < 1.01 * spacing, "gaps {min}..{max}");
+        assert!(
+            min > 0.99 * spacing && max < 1.01 * spacing,
+            "gaps {min}..{max}"
+        );
         for p in &sheet.points {
             // On the plane y·0.6 − (z − 0.1)·0.8 = 0.
             assert!((p[1] * 0.6 - (p[2] - 0.1) * 0.8).abs() < 1e-9);
@@ -303,14 +325,22 @@ mod tests {
         // The bottom corners bound the lattice (a real cloud has the sides).
         surface.push([-0.05, -0.05, 0.0]);
         surface.push([0.05, 0.05, 0.0]);
-        let views = [CarveView { camera: &camera, depth_m: &depth, object: &object, hand: &hand }];
+        let views = [CarveView {
+            camera: &camera,
+            depth_m: &depth,
+            object: &object,
+            hand: &hand,
+        }];
         let spacing = 0.01;
         let interior = carve_interior(&views, &surface, [0.0, 0.0, 1.0], 0.0, spacing, 0.002);
         // 10 × 10 × 10 lattice, minus the top layer (within a spacing of the
         // observed top) — and every kept point inside the cube.
         assert!((850..=1000).contains(&interior.len()), "{}", interior.len());
         for p in &interior {
-            assert!(p[0].abs() < 0.05 && p[1].abs() < 0.05 && p[2] > 0.0 && p[2] < 0.1, "{p:?}");
+            assert!(
+                p[0].abs() < 0.05 && p[1].abs() < 0.05 && p[2] > 0.0 && p[2] < 0.1,
+                "{p:?}"
+            );
         }
         let (min, max) = nearest_gap_stats(&interior);
         assert!((min - spacing).abs() < 1e-9 && (max - spacing).abs() < 1e-9);

@@ -5,9 +5,9 @@
 //! material point are fused (averaged where both see it) and duplicates
 //! dropped.
 
+use dm_mpm::neighbors::PointIndex;
 use dm_view::Camera;
 use image::GrayImage;
-use dm_mpm::neighbors::PointIndex;
 
 use crate::track2d::Tracks2d;
 
@@ -288,17 +288,34 @@ mod tests {
         let options = LiftOptions::default();
         let d = window_depth(&depth, w, h, Some(&mask), 4.5, 4.5, &options).expect("depth");
         assert_eq!(d, 0.5);
-        assert!(window_depth(&depth, w, h, Some(&GrayImage::new(w, h)), 4.5, 4.5, &options).is_none());
+        assert!(
+            window_depth(
+                &depth,
+                w,
+                h,
+                Some(&GrayImage::new(w, h)),
+                4.5,
+                4.5,
+                &options
+            )
+            .is_none()
+        );
     }
 
     #[test]
     fn fusion_averages_the_same_point_seen_twice_and_keeps_others() {
         let a = Tracks3d {
-            points: vec![vec![[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], vec![[0.0, 0.0, 0.01], [0.1, 0.0, 0.01]]],
+            points: vec![
+                vec![[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]],
+                vec![[0.0, 0.0, 0.01], [0.1, 0.0, 0.01]],
+            ],
             valid: vec![vec![true, true], vec![true, true]],
         };
         let b = Tracks3d {
-            points: vec![vec![[0.001, 0.0, 0.0], [0.5, 0.0, 0.0]], vec![[0.001, 0.0, 0.01], [0.5, 0.0, 0.0]]],
+            points: vec![
+                vec![[0.001, 0.0, 0.0], [0.5, 0.0, 0.0]],
+                vec![[0.001, 0.0, 0.01], [0.5, 0.0, 0.0]],
+            ],
             valid: vec![vec![true, true], vec![true, false]],
         };
         let fused = fuse_cameras(&[a, b], &LiftOptions::default());

@@ -59,7 +59,9 @@ impl ScaleFit {
 pub enum ScaleFitError {
     #[error("scale fit: {mono} monocular values but {reference} reference values")]
     LengthMismatch { mono: usize, reference: usize },
-    #[error("scale fit: only {found} valid pixel pairs (finite, reference depth > 0) on the object; need at least {MIN_SAMPLES}")]
+    #[error(
+        "scale fit: only {found} valid pixel pairs (finite, reference depth > 0) on the object; need at least {MIN_SAMPLES}"
+    )]
     TooFewSamples { found: usize },
     #[error("scale fit: the monocular depth is constant on the object, so no scale is defined")]
     DegenerateMono,
@@ -122,7 +124,8 @@ pub fn fit_depth_scale(
         return Err(ScaleFitError::DegenerateMono);
     }
     let centre = (reference_level / centre).abs().max(f64::MIN_POSITIVE);
-    let mut objective = |log_scale: f64| evaluate(&mono, &reference, log_scale.exp(), model, &mut scratch).0;
+    let mut objective =
+        |log_scale: f64| evaluate(&mono, &reference, log_scale.exp(), model, &mut scratch).0;
 
     let (low, high) = (centre.ln() - GRID_SPAN.ln(), centre.ln() + GRID_SPAN.ln());
     let step = (high - low) / (GRID_POINTS - 1) as f64;
@@ -153,7 +156,11 @@ pub fn fit_depth_scale(
     // The golden bracket never leaves the grid's best cell; keep whichever
     // of the grid point and the refined point is better.
     let refined = (a + b) / 2.0;
-    let log_scale = if objective(refined) <= best_value { refined } else { best_log };
+    let log_scale = if objective(refined) <= best_value {
+        refined
+    } else {
+        best_log
+    };
     let scale = log_scale.exp();
     let (median_abs_residual_m, shift_m) = evaluate(&mono, &reference, scale, model, &mut scratch);
     Ok(ScaleFit {
@@ -236,7 +243,12 @@ mod tests {
             let (mono, reference) = planted(planted_scale, 0.0, 0.2, seed);
             let fit = fit_depth_scale(&mono, &reference, DepthModel::Scale).expect("fit");
             let error = (fit.scale / planted_scale - 1.0).abs();
-            assert!(error < 0.01, "seed {seed}: scale {} vs {planted_scale} ({:.3} %)", fit.scale, 100.0 * error);
+            assert!(
+                error < 0.01,
+                "seed {seed}: scale {} vs {planted_scale} ({:.3} %)",
+                fit.scale,
+                100.0 * error
+            );
         }
     }
 
@@ -258,7 +270,10 @@ mod tests {
         let (mono, reference) = planted(planted_scale, 0.0, 0.2, 1);
         let least_squares = mono.iter().zip(&reference).map(|(m, r)| m * r).sum::<f64>()
             / mono.iter().map(|m| m * m).sum::<f64>();
-        assert!((least_squares / planted_scale - 1.0).abs() > 0.05, "{least_squares}");
+        assert!(
+            (least_squares / planted_scale - 1.0).abs() > 0.05,
+            "{least_squares}"
+        );
     }
 
     #[test]

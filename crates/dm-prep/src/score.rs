@@ -52,9 +52,8 @@ pub fn score_tracks(bundle: &Path, reference: &Path) -> Result<TrackScore, Score
             r.frame_count()
         )));
     }
-    let at = |a: &ndarray::Array3<f32>, t: usize, n: usize| {
-        [0, 1, 2].map(|k| f64::from(a[[t, n, k]]))
-    };
+    let at =
+        |a: &ndarray::Array3<f32>, t: usize, n: usize| [0, 1, 2].map(|k| f64::from(a[[t, n, k]]));
     let reference_first: Vec<[f64; 3]> = (0..r.object_point_count())
         .map(|n| at(&r.object_points, 0, n))
         .collect();
@@ -72,7 +71,9 @@ pub fn score_tracks(bundle: &Path, reference: &Path) -> Result<TrackScore, Score
         for t in 0..frames {
             if p.object_visibility[[t, n]] && p.object_motion_valid[[t, n]] {
                 let (a, b) = (at(&p.object_points, t, n), at(&r.object_points, t, j));
-                errors.push(((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt());
+                errors.push(
+                    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt(),
+                );
             }
         }
     }

@@ -168,8 +168,8 @@ pub fn segment_frame(
         let rx1 = (x1 + margin + 1).min(w);
         let ry1 = (y1 + margin + 1).min(h);
         let (rw, rh) = (rx1 - rx0, ry1 - ry0);
-        let crop = image::imageops::crop_imm(rgb, rx0 as u32, ry0 as u32, rw as u32, rh as u32)
-            .to_image();
+        let crop =
+            image::imageops::crop_imm(rgb, rx0 as u32, ry0 as u32, rw as u32, rh as u32).to_image();
         let bgr = crate::video::rgb_to_bgr_mat(&crop)?;
         let mut mask = Mat::new_rows_cols_with_default(
             rh as i32,
@@ -206,7 +206,8 @@ pub fn segment_frame(
                     let i = (y + ry0) * w + x + rx0;
                     // The object stands above the floor: GrabCut may only
                     // move the boundary within what depth left uncertain.
-                    is_object[i] = (l == opencv::imgproc::GC_FGD || l == opencv::imgproc::GC_PR_FGD)
+                    is_object[i] = (l == opencv::imgproc::GC_FGD
+                        || l == opencv::imgproc::GC_PR_FGD)
                         && labels[i] != opencv::imgproc::GC_BGD as u8;
                 }
             }
@@ -245,7 +246,11 @@ mod tests {
         let mut depth = vec![0.6f32; w * h];
         for y in 0..h {
             for x in 0..w {
-                let floor = if (x / 8 + y / 8) % 2 == 0 { [120, 120, 120] } else { [60, 60, 60] };
+                let floor = if (x / 8 + y / 8) % 2 == 0 {
+                    [120, 120, 120]
+                } else {
+                    [60, 60, 60]
+                };
                 let (color, z) = if (10..26).contains(&x) && (12..36).contains(&y) {
                     ([40, 80, 200], 0.58)
                 } else if (40..54).contains(&x) && (14..30).contains(&y) {
@@ -257,8 +262,15 @@ mod tests {
                 depth[y * w + x] = z;
             }
         }
-        let masks = segment_frame(&camera, &rgb, &depth, [0.0, 0.0, 1.0], 0.0, &SegmentOptions::default())
-            .expect("segmentation runs");
+        let masks = segment_frame(
+            &camera,
+            &rgb,
+            &depth,
+            [0.0, 0.0, 1.0],
+            0.0,
+            &SegmentOptions::default(),
+        )
+        .expect("segmentation runs");
         let at = |m: &GrayImage, x: u32, y: u32| m.get_pixel(x, y).0[0] == 255;
         assert!(at(&masks.object, 17, 24) && !at(&masks.hand, 17, 24));
         assert!(at(&masks.hand, 47, 22) && !at(&masks.object, 47, 22));

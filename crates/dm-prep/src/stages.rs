@@ -18,7 +18,9 @@ use ndarray::{Array2, Array3};
 use serde::{Deserialize, Serialize};
 
 use crate::capture::{Capture, CaptureError};
-use crate::fill::{CarveView, ColoredPoints, carve_interior, fill_sheet, nearest_colors, voxel_thin};
+use crate::fill::{
+    CarveView, ColoredPoints, carve_interior, fill_sheet, nearest_colors, voxel_thin,
+};
 use crate::lift::{LiftOptions, Tracks3d, fuse_cameras, hold_last, lift_camera};
 use crate::segment::{SegmentOptions, segment_frame};
 use crate::track2d::{TrackOptions, Tracks2d, grey_mat, query_pixels, track_points};
@@ -35,7 +37,13 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 5] = [Stage::Segment, Stage::Depth, Stage::Track, Stage::Lift, Stage::Fill];
+    pub const ALL: [Stage; 5] = [
+        Stage::Segment,
+        Stage::Depth,
+        Stage::Track,
+        Stage::Lift,
+        Stage::Fill,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -186,8 +194,18 @@ impl Prep {
             .iter()
             .enumerate()
             .map(|(i, c)| {
-                Camera::from_matrix_4x4(c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.world_to_camera)
-                    .map_err(|e| BundleError::new(&calibration_path, format!("cameras[{i}]"), e.to_string()))
+                Camera::from_matrix_4x4(
+                    c.width,
+                    c.height,
+                    c.fx,
+                    c.fy,
+                    c.cx,
+                    c.cy,
+                    c.world_to_camera,
+                )
+                .map_err(|e| {
+                    BundleError::new(&calibration_path, format!("cameras[{i}]"), e.to_string())
+                })
             })
             .collect::<Result<Vec<_>, _>>()?;
         std::fs::create_dir_all(work).map_err(|e| BundleError::io(work, "creating", &e))?;
@@ -256,22 +274,38 @@ impl Prep {
     }
 
     /// Runs `stage` after its inputs, each only when its cache is stale.
-    pub fn run(&self, stage: Stage, progress: Progress<'_>) -> Result<Vec<StageOutcome>, PrepError> {
+    pub fn run(
+        &self,
+        stage: Stage,
+        progress: Progress<'_>,
+    ) -> Result<Vec<StageOutcome>, PrepError> {
         let mut outcomes = Vec::new();
         for &input in stage.inputs() {
             for outcome in self.run(input, progress)? {
-                if !outcomes.iter().any(|o: &StageOutcome| o.stage == outcome.stage) {
+                if !outcomes
+                    .iter()
+                    .any(|o: &StageOutcome| o.stage == outcome.stage)
+                {
                     outcomes.push(outcome);
                 }
             }
         }
         let fingerprint = self.fingerprint(stage)?;
-        if self.read_record(stage).is_some_and(|r| r.fingerprint == fingerprint) {
-            outcomes.push(StageOutcome { stage, ran: false, seconds: 0.0 });
+        if self
+            .read_record(stage)
+            .is_some_and(|r| r.fingerprint == fingerprint)
+        {
+            outcomes.push(StageOutcome {
+                stage,
+                ran: false,
+                seconds: 0.0,
+            });
             return Ok(outcomes);
         }
         let final_dir = self.stage_dir(stage);
-        let temp = self.work.join(format!(".{}.tmp-{}", stage.name(), std::process::id()));
+        let temp = self
+            .work
+            .join(format!(".{}.tmp-{}", stage.name(), std::process::id()));
         if temp.exists() {
             std::fs::remove_dir_all(&temp).map_err(|e| BundleError::io(&temp, "removing", &e))?;
         }
@@ -289,21 +323,41 @@ impl Prep {
             return Err(e);
         }
         let seconds = start.elapsed().as_secs_f64();
-        write_json_atomic(&temp.join("stage.json"), &StageRecord { stage, fingerprint, seconds })?;
+        write_json_atomic(
+            &temp.join("stage.json"),
+            &StageRecord {
+                stage,
+                fingerprint,
+                seconds,
+            },
+        )?;
         if final_dir.exists() {
-            std::fs::remove_dir_all(&final_dir).map_err(|e| BundleError::io(&final_dir, "removing", &e))?;
+            std::fs::remove_dir_all(&final_dir)
+                .map_err(|e| BundleError::io(&final_dir, "removing", &e))?;
         }
-        std::fs::rename(&temp, &final_dir).map_err(|e| BundleError::io(&final_dir, "renaming into place", &e))?;
-        outcomes.push(StageOutcome { stage, ran: true, seconds });
+        std::fs::rename(&temp, &final_dir)
+            .map_err(|e| BundleError::io(&final_dir, "renaming into place", &e))?;
+        outcomes.push(StageOutcome {
+            stage,
+            ran: true,
+            seconds,
+        });
         Ok(outcomes)
     }
 
     fn names(&self) -> Vec<String> {
-        self.capture.calibration.cameras.iter().map(|c| c.name.clone()).collect()
+        self.capture
+            .calibration
+            .cameras
+            .iter()
+            .map(|c| c.name.clone())
+            .collect()
     }
 
     fn mask_path(dir: &Path, camera: &str, kind: &str, t: usize) -> PathBuf {
-        dir.join(camera).join(kind).join(dm_bundle::frame_file_name(t))
+        dir.join(camera)
+            .join(kind)
+            .join(dm_bundle::frame_file_name(t))
     }
 
     fn read_masks(&self, c: usize, kind: &str) -> Result<Vec<GrayImage>, PrepError> {
@@ -373,10 +427,16 @@ impl Prep {
 
     fn read_depth(&self, c: usize) -> Result<Vec<Vec<f32>>, PrepError> {
         let name = &self.capture.calibration.cameras[c].name;
-        let depth: Array3<f32> = read_npy_checked(&self.stage_dir(Stage::Depth).join(format!("{name}.npy")))?;
+        let depth: Array3<f32> =
+            read_npy_checked(&self.stage_dir(Stage::Depth).join(format!("{name}.npy")))?;
         Ok(depth
             .outer_iter()
-            .map(|frame| frame.iter().map(|&d| if d > 0.0 { d } else { f32::NAN }).collect())
+            .map(|frame| {
+                frame
+                    .iter()
+                    .map(|&d| if d > 0.0 { d } else { f32::NAN })
+                    .collect()
+            })
             .collect())
     }
 
@@ -392,7 +452,8 @@ impl Prep {
                 .map_err(cv("track"))?;
             for (k, kind) in ["object", "hand"].into_iter().enumerate() {
                 let masks = self.read_masks(c, kind)?;
-                let queries = query_pixels(&greys[0], &masks[0], &self.options.track).map_err(cv("track"))?;
+                let queries =
+                    query_pixels(&greys[0], &masks[0], &self.options.track).map_err(cv("track"))?;
                 let tracks = track_points(&greys, Some(&masks), &queries, &self.options.track)
                     .map_err(cv("track"))?;
                 write_tracks2d(out, name, kind, &tracks)?;
@@ -409,9 +470,15 @@ impl Prep {
         let (frames, n) = (points.shape()[0], points.shape()[1]);
         Ok(Tracks2d {
             points: (0..frames)
-                .map(|t| (0..n).map(|k| [points[[t, k, 0]], points[[t, k, 1]]]).collect())
+                .map(|t| {
+                    (0..n)
+                        .map(|k| [points[[t, k, 0]], points[[t, k, 1]]])
+                        .collect()
+                })
                 .collect(),
-            alive: (0..frames).map(|t| (0..n).map(|k| alive[[t, k]]).collect()).collect(),
+            alive: (0..frames)
+                .map(|t| (0..n).map(|k| alive[[t, k]]).collect())
+                .collect(),
         })
     }
 
@@ -424,7 +491,13 @@ impl Prep {
             for (kind, sink) in [("object", &mut object), ("hand", &mut hand)] {
                 let tracks = self.read_tracks2d(name, kind)?;
                 let masks = self.read_masks(c, kind)?;
-                sink.push(lift_camera(&self.cameras[c], &tracks, &depth, &masks, &self.options.lift));
+                sink.push(lift_camera(
+                    &self.cameras[c],
+                    &tracks,
+                    &depth,
+                    &masks,
+                    &self.options.lift,
+                ));
             }
             progress("lift", c + 1, self.cameras.len());
         }
@@ -432,7 +505,9 @@ impl Prep {
         if object.is_empty() {
             return Err(PrepError::Stage {
                 stage: "lift",
-                problem: "no object track could be lifted at frame 0 (empty object masks or no depth?)".into(),
+                problem:
+                    "no object track could be lifted at frame 0 (empty object masks or no depth?)"
+                        .into(),
             });
         }
         let hand = fuse_cameras(&hand, &self.options.lift);
@@ -455,7 +530,8 @@ impl Prep {
                 }
                 tracks.object_visibility[[t, k]] = object.valid[t][k];
                 // Motion is trusted where the point was seen now and in the previous frame.
-                tracks.object_motion_valid[[t, k]] = object.valid[t][k] && (t == 0 || object.valid[t - 1][k]);
+                tracks.object_motion_valid[[t, k]] =
+                    object.valid[t][k] && (t == 0 || object.valid[t - 1][k]);
             }
             for k in 0..m {
                 for a in 0..3 {
@@ -484,7 +560,9 @@ impl Prep {
 
     /// Every frame-0 object pixel of every camera lifted to the world, with
     /// its colour.
-    fn first_frame_cloud(&self) -> Result<(ColoredPoints, Vec<Vec<f32>>, Vec<GrayImage>, Vec<GrayImage>), PrepError> {
+    fn first_frame_cloud(
+        &self,
+    ) -> Result<(ColoredPoints, Vec<Vec<f32>>, Vec<GrayImage>, Vec<GrayImage>), PrepError> {
         let mut cloud = ColoredPoints::default();
         let (mut depths, mut objects, mut hands) = (Vec::new(), Vec::new(), Vec::new());
         for c in 0..self.cameras.len() {
@@ -512,7 +590,9 @@ impl Prep {
                     };
                     let p = camera.unproject(u, v, f64::from(d));
                     cloud.points.push([p.x, p.y, p.z]);
-                    cloud.colors.push(rgb.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0));
+                    cloud
+                        .colors
+                        .push(rgb.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0));
                 }
             }
             depths.push(depth);
@@ -533,12 +613,22 @@ impl Prep {
                 problem: "the frame-0 object masks hold no pixel with depth".into(),
             });
         }
-        let category = self.options.category.unwrap_or_else(|| infer_category(&thinned.points));
+        let category = self
+            .options
+            .category
+            .unwrap_or_else(|| infer_category(&thinned.points));
         let calibration = &self.capture.calibration;
         let (surface, interior) = if category == Category::Planar {
             let sheet = fill_sheet(&thinned, spacing);
             // A sheet too sparse to triangulate keeps the thinned points.
-            (if sheet.points.is_empty() { thinned } else { sheet }, Vec::new())
+            (
+                if sheet.points.is_empty() {
+                    thinned
+                } else {
+                    sheet
+                },
+                Vec::new(),
+            )
         } else {
             let views: Vec<CarveView<'_>> = (0..self.cameras.len())
                 .map(|c| CarveView {
@@ -563,7 +653,8 @@ impl Prep {
         let to_array = |points: &[[f64; 3]]| {
             Array2::from_shape_fn((points.len(), 3), |(i, a)| points[i][a] as f32)
         };
-        let colors = |c: &[[f32; 3]]| Array2::from_shape_fn((c.len(), 3), |(i, a)| c[i][a].clamp(0.0, 1.0));
+        let colors =
+            |c: &[[f32; 3]]| Array2::from_shape_fn((c.len(), 3), |(i, a)| c[i][a].clamp(0.0, 1.0));
         write_npy_file(&out.join("surface_points.npy"), &to_array(&surface.points))?;
         write_npy_file(&out.join("surface_colors.npy"), &colors(&surface.colors))?;
         write_npy_file(&out.join("interior_points.npy"), &to_array(&interior))?;
@@ -575,7 +666,12 @@ impl Prep {
 
     /// Runs every stage (resuming from the cache) and writes the bundle to
     /// `out` (atomically; an existing one only replaced with `overwrite`).
-    pub fn write_bundle(&self, out: &Path, overwrite: bool, progress: Progress<'_>) -> Result<dm_bundle::Bundle, PrepError> {
+    pub fn write_bundle(
+        &self,
+        out: &Path,
+        overwrite: bool,
+        progress: Progress<'_>,
+    ) -> Result<dm_bundle::Bundle, PrepError> {
         let outcomes = self.run(Stage::Fill, progress)?;
         let (tracks, hands) = self.read_lifted()?;
         let fill_dir = self.stage_dir(Stage::Fill);
@@ -588,7 +684,12 @@ impl Prep {
         let category: Category = read_json(&fill_dir.join("category.json"))?;
         let calibration = &self.capture.calibration;
         let frames = calibration.frame_count;
-        let mut meta = BundleMeta::new(frames, calibration.fps, category, calibration.cameras.clone());
+        let mut meta = BundleMeta::new(
+            frames,
+            calibration.fps,
+            category,
+            calibration.cameras.clone(),
+        );
         meta.up_axis = calibration.up_axis;
         meta.floor_height_m = calibration.floor_height_m;
         meta.hands = hands;
@@ -598,7 +699,11 @@ impl Prep {
             created_unix_s: 0,
             notes: format!(
                 "classical fallbacks: depth/colour model + GrabCut masks, Lucas-Kanade tracks with forward-backward check, sensor depth; stages {}",
-                outcomes.iter().map(|o| o.stage.name()).collect::<Vec<_>>().join(",")
+                outcomes
+                    .iter()
+                    .map(|o| o.stage.name())
+                    .collect::<Vec<_>>()
+                    .join(",")
             ),
         };
         let mut writer = if overwrite {
@@ -612,7 +717,14 @@ impl Prep {
             let objects = self.read_masks(c, "object")?;
             let hand_masks = self.read_masks(c, "hand")?;
             for t in 0..frames {
-                writer.write_frame_images(c, t, &colors[t], &depth[t], &objects[t], &hand_masks[t])?;
+                writer.write_frame_images(
+                    c,
+                    t,
+                    &colors[t],
+                    &depth[t],
+                    &objects[t],
+                    &hand_masks[t],
+                )?;
             }
             let _ = name;
             progress("bundle", c + 1, self.cameras.len());
@@ -634,8 +746,14 @@ fn write_tracks2d(out: &Path, name: &str, kind: &str, tracks: &Tracks2d) -> Resu
 
 fn write_bundle_tracks(out: &Path, tracks: &Tracks) -> Result<(), PrepError> {
     write_npy_file(&out.join("object_points.npy"), &tracks.object_points)?;
-    write_npy_file(&out.join("object_visibility.npy"), &tracks.object_visibility)?;
-    write_npy_file(&out.join("object_motion_valid.npy"), &tracks.object_motion_valid)?;
+    write_npy_file(
+        &out.join("object_visibility.npy"),
+        &tracks.object_visibility,
+    )?;
+    write_npy_file(
+        &out.join("object_motion_valid.npy"),
+        &tracks.object_motion_valid,
+    )?;
     write_npy_file(&out.join("hand_points.npy"), &tracks.hand_points)?;
     write_npy_file(&out.join("hand_visibility.npy"), &tracks.hand_visibility)?;
     Ok(())
@@ -695,8 +813,12 @@ fn hand_anchors(hand: &Tracks3d, object_first: &[[f64; 3]]) -> (Tracks3d, Vec<Ha
     }
     let frames = hand.points.len();
     let anchors = Tracks3d {
-        points: (0..frames).map(|t| order.iter().map(|&k| hand.points[t][k]).collect()).collect(),
-        valid: (0..frames).map(|t| order.iter().map(|&k| hand.valid[t][k]).collect()).collect(),
+        points: (0..frames)
+            .map(|t| order.iter().map(|&k| hand.points[t][k]).collect())
+            .collect(),
+        valid: (0..frames)
+            .map(|t| order.iter().map(|&k| hand.valid[t][k]).collect())
+            .collect(),
     };
     (anchors, specs)
 }

@@ -82,13 +82,24 @@ fn eroded(mask: &GrayImage, margin: u32) -> Vec<(u32, u32)> {
     let (w, h) = mask.dimensions();
     let m = margin as i64;
     let inside = |x: i64, y: i64| {
-        x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && mask.get_pixel(x as u32, y as u32).0[0] > 0
+        x >= 0
+            && y >= 0
+            && x < w as i64
+            && y < h as i64
+            && mask.get_pixel(x as u32, y as u32).0[0] > 0
     };
     let mut out = Vec::new();
     for y in 0..h as i64 {
         for x in 0..w as i64 {
-            if inside(x, y) && inside(x - m, y) && inside(x + m, y) && inside(x, y - m) && inside(x, y + m)
-                && inside(x - m, y - m) && inside(x + m, y + m) && inside(x - m, y + m) && inside(x + m, y - m)
+            if inside(x, y)
+                && inside(x - m, y)
+                && inside(x + m, y)
+                && inside(x, y - m)
+                && inside(x, y + m)
+                && inside(x - m, y - m)
+                && inside(x + m, y + m)
+                && inside(x - m, y + m)
+                && inside(x + m, y - m)
             {
                 out.push((x as u32, y as u32));
             }
@@ -247,7 +258,8 @@ mod tests {
             for (k, q) in queries.iter().enumerate() {
                 assert!(tracks.alive[t][k], "track {k} lost at frame {t}");
                 let p = tracks.points[t][k];
-                let error = ((p[0] - q[0] - shift[0]).powi(2) + (p[1] - q[1] - shift[1]).powi(2)).sqrt();
+                let error =
+                    ((p[0] - q[0] - shift[0]).powi(2) + (p[1] - q[1] - shift[1]).powi(2)).sqrt();
                 assert!(error < 0.05, "frame {t} track {k}: error {error} px");
             }
         }
@@ -257,18 +269,28 @@ mod tests {
     fn flat_pixels_are_not_queried_and_masks_stop_tracks() {
         let flat = grey_mat(&RgbImage::from_pixel(40, 30, image::Rgb([90, 90, 90]))).expect("grey");
         let mask = GrayImage::from_pixel(40, 30, image::Luma([255]));
-        assert!(query_pixels(&flat, &mask, &TrackOptions::default()).expect("queries").is_empty());
+        assert!(
+            query_pixels(&flat, &mask, &TrackOptions::default())
+                .expect("queries")
+                .is_empty()
+        );
 
         let frames: Vec<Mat> = (0..2)
             .map(|_| grey_mat(&textured(96, 80, [0.0, 0.0])).expect("grey"))
             .collect();
         let empty = GrayImage::new(96, 80);
         let masks = vec![mask_full(), empty];
-        let tracks = track_points(&frames, Some(&masks), &[[48.5, 40.5]], &TrackOptions::default())
-            .expect("tracking");
+        let tracks = track_points(
+            &frames,
+            Some(&masks),
+            &[[48.5, 40.5]],
+            &TrackOptions::default(),
+        )
+        .expect("tracking");
         assert!(tracks.alive[0][0] && !tracks.alive[1][0]);
         // No queries (a mask without texture): empty tracks, no OpenCV error.
-        let none = track_points(&frames, Some(&masks), &[], &TrackOptions::default()).expect("empty");
+        let none =
+            track_points(&frames, Some(&masks), &[], &TrackOptions::default()).expect("empty");
         assert_eq!((none.points.len(), none.len()), (2, 0));
     }
 

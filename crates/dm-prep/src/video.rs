@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 
 use image::RgbImage;
 use opencv::core::{Mat, Size, Vec3b};
-use opencv::prelude::{MatTraitConst, MatTraitConstManual, MatTraitManual, VideoCaptureTrait, VideoCaptureTraitConst};
+use opencv::prelude::{
+    MatTraitConst, MatTraitConstManual, MatTraitManual, VideoCaptureTrait, VideoCaptureTraitConst,
+};
 use opencv::prelude::{VideoWriterTrait, VideoWriterTraitConst};
 use opencv::videoio;
 
@@ -120,7 +122,8 @@ impl VideoSink {
 /// Every frame of a video, as RGB images.
 pub fn decode_video(path: &Path) -> Result<Vec<RgbImage>, CaptureError> {
     let cv = |e: opencv::Error| video_error(path, format!("OpenCV VideoCapture: {e}"));
-    let mut capture = videoio::VideoCapture::from_file(utf8(path)?, videoio::CAP_ANY).map_err(cv)?;
+    let mut capture =
+        videoio::VideoCapture::from_file(utf8(path)?, videoio::CAP_ANY).map_err(cv)?;
     if !capture.is_opened().map_err(cv)? {
         return Err(video_error(path, "OpenCV could not open the video"));
     }

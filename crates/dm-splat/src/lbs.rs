@@ -93,7 +93,11 @@ impl LbsBridge {
         check_finite(current)?;
         gaussians.validate()?;
         let rotations = self.particle_rotations(current);
-        let means: Vec<Vector3<f64>> = gaussians.means.iter().map(|m| m.map(|c| c.to_f64())).collect();
+        let means: Vec<Vector3<f64>> = gaussians
+            .means
+            .iter()
+            .map(|m| m.map(|c| c.to_f64()))
+            .collect();
         let binding = self.bind(&means);
         let new_means = skin_means(&binding, &means, &self.previous, current, &rotations);
         let quats: Vec<UnitQuaternion<f64>> = rotations
@@ -134,7 +138,10 @@ impl LbsBridge {
             .par_iter()
             .map(|mean| {
                 let near = index.nearest(&[mean.x, mean.y, mean.z], self.neighbors);
-                let total: f64 = near.iter().map(|(_, d)| 1.0 / (d + WEIGHT_DISTANCE_EPS)).sum();
+                let total: f64 = near
+                    .iter()
+                    .map(|(_, d)| 1.0 / (d + WEIGHT_DISTANCE_EPS))
+                    .sum();
                 near.iter()
                     .map(|&(b, d)| (b as u32, 1.0 / (d + WEIGHT_DISTANCE_EPS) / total))
                     .collect()

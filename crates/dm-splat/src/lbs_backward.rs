@@ -59,14 +59,32 @@ mod tests {
     fn skin_means_vjp_matches_central_differences() {
         let mut seed = 0x5eed_u64;
         let previous: Vec<[f64; 3]> = (0..40)
-            .map(|_| [0.1 * pseudo(&mut seed), 0.1 * pseudo(&mut seed), 0.1 * pseudo(&mut seed)])
+            .map(|_| {
+                [
+                    0.1 * pseudo(&mut seed),
+                    0.1 * pseudo(&mut seed),
+                    0.1 * pseudo(&mut seed),
+                ]
+            })
             .collect();
         let current: Vec<[f64; 3]> = previous
             .iter()
-            .map(|p| [p[0] + 0.01 * pseudo(&mut seed), p[1] + 0.02, p[2] - 0.005 * pseudo(&mut seed)])
+            .map(|p| {
+                [
+                    p[0] + 0.01 * pseudo(&mut seed),
+                    p[1] + 0.02,
+                    p[2] - 0.005 * pseudo(&mut seed),
+                ]
+            })
             .collect();
         let means: Vec<Vector3<f64>> = (0..25)
-            .map(|_| Vector3::new(0.1 * pseudo(&mut seed), 0.1 * pseudo(&mut seed), 0.1 * pseudo(&mut seed)))
+            .map(|_| {
+                Vector3::new(
+                    0.1 * pseudo(&mut seed),
+                    0.1 * pseudo(&mut seed),
+                    0.1 * pseudo(&mut seed),
+                )
+            })
             .collect();
         let rotations: Vec<Matrix3<f64>> = (0..previous.len())
             .map(|i| *Rotation3::from_euler_angles(0.1 * i as f64, -0.05, 0.02 * i as f64).matrix())
@@ -85,7 +103,11 @@ mod tests {
                 .sum()
         };
         let analytic = skin_means_vjp(&binding, &cotangent, previous.len());
-        let scale = analytic.iter().flatten().map(|g| g.abs()).fold(0.0, f64::max);
+        let scale = analytic
+            .iter()
+            .flatten()
+            .map(|g| g.abs())
+            .fold(0.0, f64::max);
         assert!(scale > 0.1, "the test must exercise non-zero gradients");
         for p in 0..previous.len() {
             for c in 0..3 {
@@ -95,7 +117,11 @@ mod tests {
                 minus[p][c] -= FD_STEP;
                 let numeric = (objective(&plus) - objective(&minus)) / (2.0 * FD_STEP);
                 let error = (numeric - analytic[p][c]).abs() / scale;
-                assert!(error < FD_REL_TOL, "particle {p} axis {c}: fd {numeric} vs {}", analytic[p][c]);
+                assert!(
+                    error < FD_REL_TOL,
+                    "particle {p} axis {c}: fd {numeric} vs {}",
+                    analytic[p][c]
+                );
             }
         }
     }

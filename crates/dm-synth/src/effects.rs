@@ -180,7 +180,11 @@ impl EffectSpec {
 pub fn draw_hidden_effect(seed: u64) -> (crate::Preset, EffectSpec) {
     use rand::{RngExt, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(crate::splitmix(seed ^ 0x00e7_7ec7));
-    let presets = [crate::Preset::Rope, crate::Preset::Cloth, crate::Preset::Toy];
+    let presets = [
+        crate::Preset::Rope,
+        crate::Preset::Cloth,
+        crate::Preset::Toy,
+    ];
     let preset = presets[rng.random_range(0..presets.len())];
     let name = EffectName::ALL[rng.random_range(0..EffectName::ALL.len())];
     let [lo, hi] = name.test_range();

@@ -355,8 +355,8 @@ fn observed_tracks(
         for k in 0..n {
             let truth_p = track_positions[t][k];
             let seen = visible_any[[t, k]] && rng.random::<f64>() >= noise.track_dropout;
-            let measured: [f64; 3] = [0, 1, 2]
-                .map(|a| truth_p[a] + bias[k][a] + noise.track_sigma * unit.sample(rng));
+            let measured: [f64; 3] =
+                [0, 1, 2].map(|a| truth_p[a] + bias[k][a] + noise.track_sigma * unit.sample(rng));
             let value = if seen || t == 0 {
                 measured
             } else {
@@ -464,10 +464,7 @@ fn outer_skin(truth: &GroundTruth, radius: f32) -> (Vec<usize>, Vec<[f64; 3]>) {
         }
         let offset = gradient.map(|g| r * g / norm);
         let skin = [0, 1, 2].map(|a| p[a] + offset[a]);
-        let covered = index
-            .within(&skin, 0.98 * r)
-            .iter()
-            .any(|&(j, _)| j != i);
+        let covered = index.within(&skin, 0.98 * r).iter().any(|&(j, _)| j != i);
         if !covered {
             ids.push(i);
             offsets.push(offset);

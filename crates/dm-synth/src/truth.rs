@@ -283,7 +283,10 @@ pub fn simulate_truth(
                 g * tilt.sin() * azimuth.sin(),
                 -g * tilt.cos(),
             ];
-            effect_extra.insert("azimuth_deg".into(), serde_json::json!(azimuth.to_degrees()));
+            effect_extra.insert(
+                "azimuth_deg".into(),
+                serde_json::json!(azimuth.to_degrees()),
+            );
             effect_extra.insert("gravity".into(), serde_json::json!(physics.gravity));
         }
         _ => {}

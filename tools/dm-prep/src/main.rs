@@ -263,11 +263,7 @@ fn stage_command(stage: Stage, args: &StageArgs) -> Result<()> {
 }
 
 fn all_command(args: &AllArgs) -> Result<()> {
-    let out = args
-        .stage
-        .out
-        .clone()
-        .context("`all` needs --out BUNDLE")?;
+    let out = args.stage.out.clone().context("`all` needs --out BUNDLE")?;
     let prep = prep_for(&args.stage)?;
     let bar = progress_bar()?;
     let mut progress = |name: &str, done: usize, total: usize| {
@@ -280,11 +276,21 @@ fn all_command(args: &AllArgs) -> Result<()> {
     let start = std::time::Instant::now();
     let bundle = prep
         .write_bundle(&out, args.overwrite, &mut progress)
-        .with_context(|| format!("preparing {} into {}", args.stage.capture.display(), out.display()))?;
+        .with_context(|| {
+            format!(
+                "preparing {} into {}",
+                args.stage.capture.display(),
+                out.display()
+            )
+        })?;
     bar.finish_and_clear();
     for stage in Stage::ALL {
         if let Some(seconds) = prep.recorded_seconds(stage) {
-            println!("stage {}: {:.1} s (when it last ran)", stage.name(), seconds);
+            println!(
+                "stage {}: {:.1} s (when it last ran)",
+                stage.name(),
+                seconds
+            );
         }
     }
     println!(
@@ -346,7 +352,9 @@ fn main() -> ExitCode {
 
 fn load_manifest(dir: Option<&Path>) -> Result<Manifest> {
     match dir {
-        Some(dir) => Manifest::load_dir(dir).with_context(|| format!("reading manifest {}", dir.display())),
+        Some(dir) => {
+            Manifest::load_dir(dir).with_context(|| format!("reading manifest {}", dir.display()))
+        }
         None => Manifest::builtin().context("reading the built-in models_manifest/"),
     }
 }
@@ -359,11 +367,18 @@ fn models_verify_command(dir: Option<&Path>, manifest: Option<&Path>) -> Result<
     for report in &reports {
         match &report.status {
             VerifyStatus::Absent => println!("absent  {:<22} {}", report.id, report.path.display()),
-            VerifyStatus::Ok { sha256, sha256_pinned } => println!(
+            VerifyStatus::Ok {
+                sha256,
+                sha256_pinned,
+            } => println!(
                 "ok      {:<22} {} sha256 {sha256}{}",
                 report.id,
                 report.path.display(),
-                if *sha256_pinned { " (matches the manifest)" } else { " (not pinned in the manifest)" }
+                if *sha256_pinned {
+                    " (matches the manifest)"
+                } else {
+                    " (not pinned in the manifest)"
+                }
             ),
             VerifyStatus::Failed(message) => {
                 failed += 1;
@@ -372,14 +387,19 @@ fn models_verify_command(dir: Option<&Path>, manifest: Option<&Path>) -> Result<
         }
     }
     if failed > 0 {
-        bail!("{failed} of the model files in {} failed verification", dir.display());
+        bail!(
+            "{failed} of the model files in {} failed verification",
+            dir.display()
+        );
     }
     Ok(())
 }
 
 fn video_command(args: &VideoArgs) -> Result<()> {
     let Some(video) = &args.video else {
-        bail!("nothing to do: give a video (`dm-prep video.mp4 --out bundle/`) or a subcommand (`dm-prep --help`)");
+        bail!(
+            "nothing to do: give a video (`dm-prep video.mp4 --out bundle/`) or a subcommand (`dm-prep --help`)"
+        );
     };
     let Some(out) = &args.out else {
         bail!("{}: --out BUNDLE is required", video.display());

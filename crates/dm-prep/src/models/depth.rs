@@ -32,9 +32,19 @@ pub struct DepthEstimator {
 
 impl DepthEstimator {
     /// Loads `id` (a depth entry: [`DEPTH_ANYTHING_ID`] or [`MOGE_ID`]).
-    pub fn load(manifest: &Manifest, id: &str, models_dir: &Path, threads: usize) -> Result<Self, ModelError> {
+    pub fn load(
+        manifest: &Manifest,
+        id: &str,
+        models_dir: &Path,
+        threads: usize,
+    ) -> Result<Self, ModelError> {
         let model = OnnxModel::load(manifest, id, models_dir, threads)?;
-        let names: Vec<&str> = model.entry.outputs.iter().map(|spec| spec.name.as_str()).collect();
+        let names: Vec<&str> = model
+            .entry
+            .outputs
+            .iter()
+            .map(|spec| spec.name.as_str())
+            .collect();
         let output = match names.as_slice() {
             ["depth"] => DepthOutput::Map,
             ["points", "mask"] => DepthOutput::PointsAndMask,
@@ -42,7 +52,9 @@ impl DepthEstimator {
                 return Err(ModelError::BadManifest {
                     path: manifest.entry_path(id),
                     field: "outputs".into(),
-                    problem: format!("{names:?}: a depth entry has outputs [depth] or [points, mask]"),
+                    problem: format!(
+                        "{names:?}: a depth entry has outputs [depth] or [points, mask]"
+                    ),
                 });
             }
         };
@@ -52,7 +64,9 @@ impl DepthEstimator {
     /// Depth in network units at the frame's resolution; NaN where invalid.
     pub fn estimate(&mut self, image: &RgbImage) -> Result<Array2<f32>, ModelError> {
         let (planes, geometry) = image_planes(image, &self.model.entry.preprocess);
-        let outputs = self.model.run(vec![("image", planes.insert_axis(Axis(0)).into_dyn())])?;
+        let outputs = self
+            .model
+            .run(vec![("image", planes.insert_axis(Axis(0)).into_dyn())])?;
         let bad = |problem: String| ModelError::BadInput {
             model: format!("{} ({})", self.model.entry.model, self.model.path.display()),
             problem,
@@ -74,7 +88,11 @@ impl DepthEstimator {
                     .into_dimensionality::<ndarray::Ix3>()
                     .map_err(|e| bad(format!("output `mask`: {e}")))?;
                 if mask.dim().1 != points.dim().1 || mask.dim().2 != points.dim().2 {
-                    return Err(bad(format!("points {:?} and mask {:?} differ", points.dim(), mask.dim())));
+                    return Err(bad(format!(
+                        "points {:?} and mask {:?} differ",
+                        points.dim(),
+                        mask.dim()
+                    )));
                 }
                 let mut z = points.slice(s![0, .., .., 2]).to_owned();
                 z.zip_mut_with(&mask.index_axis(Axis(0), 0), |depth, &valid| {
@@ -87,13 +105,19 @@ impl DepthEstimator {
         };
         let (h, w) = network_map.dim();
         if (w as u32, h as u32) != geometry.input {
-            return Err(bad(format!("depth map is {w}×{h}, the input was {:?}", geometry.input)));
+            return Err(bad(format!(
+                "depth map is {w}×{h}, the input was {:?}",
+                geometry.input
+            )));
         }
         let (width, height) = geometry.original;
-        Ok(Array2::from_shape_fn((height as usize, width as usize), |(y, x)| {
-            let input = geometry.to_input([x as f64 + 0.5, y as f64 + 0.5]);
-            sample_bilinear(network_map.view(), input[0], input[1])
-        }))
+        Ok(Array2::from_shape_fn(
+            (height as usize, width as usize),
+            |(y, x)| {
+                let input = geometry.to_input([x as f64 + 0.5, y as f64 + 0.5]);
+                sample_bilinear(network_map.view(), input[0], input[1])
+            },
+        ))
     }
 }
 

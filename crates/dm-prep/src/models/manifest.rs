@@ -16,11 +16,26 @@ use super::ModelError;
 
 /// The manifest files compiled into the binary, by file name.
 const BUILTIN: [(&str, &str); 5] = [
-    ("sam2_image_encoder.json", include_str!("../../../../models_manifest/sam2_image_encoder.json")),
-    ("sam2_prompt_decoder.json", include_str!("../../../../models_manifest/sam2_prompt_decoder.json")),
-    ("cotracker3.json", include_str!("../../../../models_manifest/cotracker3.json")),
-    ("depth_anything3.json", include_str!("../../../../models_manifest/depth_anything3.json")),
-    ("moge2.json", include_str!("../../../../models_manifest/moge2.json")),
+    (
+        "sam2_image_encoder.json",
+        include_str!("../../../../models_manifest/sam2_image_encoder.json"),
+    ),
+    (
+        "sam2_prompt_decoder.json",
+        include_str!("../../../../models_manifest/sam2_prompt_decoder.json"),
+    ),
+    (
+        "cotracker3.json",
+        include_str!("../../../../models_manifest/cotracker3.json"),
+    ),
+    (
+        "depth_anything3.json",
+        include_str!("../../../../models_manifest/depth_anything3.json"),
+    ),
+    (
+        "moge2.json",
+        include_str!("../../../../models_manifest/moge2.json"),
+    ),
 ];
 
 /// Where model files are looked for when no directory is given.
@@ -187,14 +202,18 @@ impl Manifest {
 
 fn parse_entry(path: &Path, text: &str) -> Result<ModelEntry, ModelError> {
     let deserializer = &mut serde_json::Deserializer::from_str(text);
-    let entry: ModelEntry =
-        serde_path_to_error::deserialize(deserializer).map_err(|error| ModelError::BadManifest {
+    let entry: ModelEntry = serde_path_to_error::deserialize(deserializer).map_err(|error| {
+        ModelError::BadManifest {
             path: path.to_path_buf(),
             field: error.path().to_string(),
             problem: error.inner().to_string(),
-        })?;
+        }
+    })?;
     if let Some(digest) = &entry.sha256
-        && (digest.len() != 64 || !digest.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()))
+        && (digest.len() != 64
+            || !digest
+                .bytes()
+                .all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase()))
     {
         return Err(ModelError::BadManifest {
             path: path.to_path_buf(),

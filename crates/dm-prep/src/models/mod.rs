@@ -82,7 +82,12 @@ pub struct OnnxModel {
 impl OnnxModel {
     /// Loads entry `id`'s file from `models_dir` with `threads` intra-op
     /// threads (ONNX Runtime's own; 1 keeps results independent of the machine).
-    pub fn load(manifest: &Manifest, id: &str, models_dir: &Path, threads: usize) -> Result<Self, ModelError> {
+    pub fn load(
+        manifest: &Manifest,
+        id: &str,
+        models_dir: &Path,
+        threads: usize,
+    ) -> Result<Self, ModelError> {
         let entry = manifest.entry(id)?.clone();
         let path = models_dir.join(&entry.file);
         if !path.is_file() {
@@ -115,7 +120,11 @@ impl OnnxModel {
                 problems,
             });
         }
-        Ok(Self { entry, path, session })
+        Ok(Self {
+            entry,
+            path,
+            session,
+        })
     }
 
     /// Runs the model on named inputs; returns the named outputs as f32 arrays
@@ -174,24 +183,41 @@ fn dtype_name(ty: TensorElementType) -> &'static str {
 /// the manifest accepts any file value).
 fn signature_problems(entry: &ModelEntry, session: &Session) -> Vec<String> {
     let mut problems = Vec::new();
-    let check = |kind: &str, spec: &TensorSpec, outlets: &[ort::value::Outlet], problems: &mut Vec<String>| {
+    let check = |kind: &str,
+                 spec: &TensorSpec,
+                 outlets: &[ort::value::Outlet],
+                 problems: &mut Vec<String>| {
         let Some(outlet) = outlets.iter().find(|outlet| outlet.name() == spec.name) else {
-            problems.push(format!("no {kind} `{}` (expected {})", spec.name, spec.shape_string()));
+            problems.push(format!(
+                "no {kind} `{}` (expected {})",
+                spec.name,
+                spec.shape_string()
+            ));
             return;
         };
         let ValueType::Tensor { ty, shape, .. } = outlet.dtype() else {
             problems.push(format!("{kind} `{}` is not a tensor", spec.name));
             return;
         };
-        let found_dims: Vec<String> = shape.iter().map(|d| if *d < 0 { "?".into() } else { d.to_string() }).collect();
+        let found_dims: Vec<String> = shape
+            .iter()
+            .map(|d| if *d < 0 { "?".into() } else { d.to_string() })
+            .collect();
         let found = format!("{} [{}]", dtype_name(*ty), found_dims.join(", "));
         let dims_match = shape.len() == spec.shape.len()
-            && shape.iter().zip(&spec.shape).all(|(found, expected)| match expected {
-                Dim::Fixed(value) => *found < 0 || found == value,
-                Dim::Named(_) => true,
-            });
+            && shape
+                .iter()
+                .zip(&spec.shape)
+                .all(|(found, expected)| match expected {
+                    Dim::Fixed(value) => *found < 0 || found == value,
+                    Dim::Named(_) => true,
+                });
         if dtype_name(*ty) != spec.dtype || !dims_match {
-            problems.push(format!("{kind} `{}` is {found}, expected {}", spec.name, spec.shape_string()));
+            problems.push(format!(
+                "{kind} `{}` is {found}, expected {}",
+                spec.name,
+                spec.shape_string()
+            ));
         }
     };
     for spec in &entry.inputs {
@@ -248,7 +274,12 @@ pub fn verify_dir(manifest: &Manifest, models_dir: &Path) -> Vec<VerifyReport> {
         .collect()
 }
 
-fn verify_file(manifest: &Manifest, entry: &ModelEntry, models_dir: &Path, path: &Path) -> VerifyStatus {
+fn verify_file(
+    manifest: &Manifest,
+    entry: &ModelEntry,
+    models_dir: &Path,
+    path: &Path,
+) -> VerifyStatus {
     let sha256 = match sha256_file(path) {
         Ok(digest) => digest,
         Err(error) => return VerifyStatus::Failed(error.to_string()),
@@ -304,7 +335,8 @@ impl InputGeometry {
                 content: input,
             },
             manifest::Resize::LongestSidePad => {
-                let factor = f64::from(input.0.min(input.1)) / f64::from(original.0.max(original.1).max(1));
+                let factor =
+                    f64::from(input.0.min(input.1)) / f64::from(original.0.max(original.1).max(1));
                 let content = (
                     ((f64::from(original.0) * factor).round() as u32).clamp(1, input.0),
                     ((f64::from(original.1) * factor).round() as u32).clamp(1, input.1),
@@ -329,7 +361,10 @@ impl InputGeometry {
 }
 
 /// A frame as the model's (3, H, W) input plane, normalised, zero-padded.
-pub fn image_planes(image: &image::RgbImage, preprocess: &manifest::Preprocess) -> (ndarray::Array3<f32>, InputGeometry) {
+pub fn image_planes(
+    image: &image::RgbImage,
+    preprocess: &manifest::Preprocess,
+) -> (ndarray::Array3<f32>, InputGeometry) {
     let geometry = InputGeometry::new(image.dimensions(), preprocess);
     let resized = image::imageops::resize(
         image,
@@ -376,22 +411,36 @@ pub struct MonocularModels {
 impl MonocularModels {
     /// Loads all of them; every missing or mismatching file is reported in
     /// one error (one line each), so a user fixes them in one go.
-    pub fn load(manifest: &Manifest, models_dir: &Path, threads: usize) -> Result<Self, MonocularModelsError> {
+    pub fn load(
+        manifest: &Manifest,
+        models_dir: &Path,
+        threads: usize,
+    ) -> Result<Self, MonocularModelsError> {
         let segmenter = segment::Segmenter::load(manifest, models_dir, threads);
         let tracker = track::PointTracker::load(manifest, models_dir, threads);
-        let depth = depth::DepthEstimator::load(manifest, depth::DEPTH_ANYTHING_ID, models_dir, threads).or_else(|first| {
-            match depth::DepthEstimator::load(manifest, depth::MOGE_ID, models_dir, threads) {
-                Ok(model) => Ok(model),
-                // Both absent: report the preferred one.
-                Err(ModelError::Missing { .. }) => Err(first),
-                Err(other) => Err(other),
-            }
-        });
+        let depth =
+            depth::DepthEstimator::load(manifest, depth::DEPTH_ANYTHING_ID, models_dir, threads)
+                .or_else(|first| {
+                    match depth::DepthEstimator::load(manifest, depth::MOGE_ID, models_dir, threads)
+                    {
+                        Ok(model) => Ok(model),
+                        // Both absent: report the preferred one.
+                        Err(ModelError::Missing { .. }) => Err(first),
+                        Err(other) => Err(other),
+                    }
+                });
         match (segmenter, tracker, depth) {
-            (Ok(segmenter), Ok(tracker), Ok(depth)) => Ok(Self { segmenter, tracker, depth }),
+            (Ok(segmenter), Ok(tracker), Ok(depth)) => Ok(Self {
+                segmenter,
+                tracker,
+                depth,
+            }),
             (segmenter, tracker, depth) => Err(MonocularModelsError {
                 models_dir: models_dir.to_path_buf(),
-                problems: [segmenter.err(), tracker.err(), depth.err()].into_iter().flatten().collect(),
+                problems: [segmenter.err(), tracker.err(), depth.err()]
+                    .into_iter()
+                    .flatten()
+                    .collect(),
             }),
         }
     }

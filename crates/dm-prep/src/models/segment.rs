@@ -55,7 +55,11 @@ pub struct Segmenter {
 }
 
 impl Segmenter {
-    pub fn load(manifest: &Manifest, models_dir: &Path, threads: usize) -> Result<Self, ModelError> {
+    pub fn load(
+        manifest: &Manifest,
+        models_dir: &Path,
+        threads: usize,
+    ) -> Result<Self, ModelError> {
         Ok(Self {
             encoder: OnnxModel::load(manifest, ENCODER_ID, models_dir, threads)?,
             decoder: OnnxModel::load(manifest, DECODER_ID, models_dir, threads)?,
@@ -70,7 +74,9 @@ impl Segmenter {
         previous: Option<&Array2<f32>>,
     ) -> Result<FrameMask, ModelError> {
         let (planes, geometry) = image_planes(image, &self.encoder.entry.preprocess);
-        let features = self.encoder.run(vec![("image", planes.insert_axis(Axis(0)).into_dyn())])?;
+        let features = self
+            .encoder
+            .run(vec![("image", planes.insert_axis(Axis(0)).into_dyn())])?;
         let feature = |name: &str| -> Result<ArrayD<f32>, ModelError> {
             let index = self
                 .encoder
@@ -92,7 +98,13 @@ impl Segmenter {
             ("high_res_feats_1", feature("high_res_feats_1")?),
             ("point_coords", coords.into_dyn()),
             ("point_labels", labels.into_dyn()),
-            ("mask_input", mask_input.into_shape_with_order((1, 1, LOW_RES, LOW_RES)).map_err(|e| bad(&self.decoder, e.to_string()))?.into_dyn()),
+            (
+                "mask_input",
+                mask_input
+                    .into_shape_with_order((1, 1, LOW_RES, LOW_RES))
+                    .map_err(|e| bad(&self.decoder, e.to_string()))?
+                    .into_dyn(),
+            ),
             ("has_mask_input", ArrayD::from_elem(IxDyn(&[1]), has_mask)),
         ])?;
         let masks = outputs[0]
@@ -104,14 +116,28 @@ impl Segmenter {
             .into_dimensionality::<ndarray::Ix2>()
             .map_err(|e| bad(&self.decoder, format!("output `iou_predictions`: {e}")))?;
         let candidates = masks.dim().1;
-        if candidates == 0 || scores.dim().1 != candidates || masks.dim().2 != LOW_RES || masks.dim().3 != LOW_RES {
+        if candidates == 0
+            || scores.dim().1 != candidates
+            || masks.dim().2 != LOW_RES
+            || masks.dim().3 != LOW_RES
+        {
             return Err(bad(
                 &self.decoder,
-                format!("masks {:?} and iou_predictions {:?} do not agree", masks.dim(), scores.dim()),
+                format!(
+                    "masks {:?} and iou_predictions {:?} do not agree",
+                    masks.dim(),
+                    scores.dim()
+                ),
             ));
         }
         // Highest predicted IoU; ties keep the first candidate.
-        let best = (0..candidates).fold(0, |best, k| if scores[[0, k]] > scores[[0, best]] { k } else { best });
+        let best = (0..candidates).fold(0, |best, k| {
+            if scores[[0, k]] > scores[[0, best]] {
+                k
+            } else {
+                best
+            }
+        });
         let logits = masks.slice(s![0, best, .., ..]).to_owned();
         Ok(FrameMask {
             mask: upsample_mask(&logits, &geometry),
@@ -123,11 +149,18 @@ impl Segmenter {
     /// Segments a clip: `prompt` on frame 0, then each frame re-prompted from
     /// the previous mask (module docs). An empty previous mask falls back to
     /// the original prompt.
-    pub fn segment_clip(&mut self, frames: &[RgbImage], prompt: &Prompt) -> Result<Vec<GrayImage>, ModelError> {
+    pub fn segment_clip(
+        &mut self,
+        frames: &[RgbImage],
+        prompt: &Prompt,
+    ) -> Result<Vec<GrayImage>, ModelError> {
         let mut masks = Vec::with_capacity(frames.len());
         let mut previous: Option<FrameMask> = None;
         for frame in frames {
-            let (frame_prompt, seed) = match previous.as_ref().and_then(|p| mask_box(&p.mask).map(|b| (b, p))) {
+            let (frame_prompt, seed) = match previous
+                .as_ref()
+                .and_then(|p| mask_box(&p.mask).map(|b| (b, p)))
+            {
                 Some((bounds, p)) => (grow_box(bounds, frame.dimensions()), Some(&p.logits)),
                 None => (prompt.clone(), None),
             };
@@ -159,10 +192,15 @@ fn prompt_arrays(
             }
             vec![(*min, LABEL_BOX_MIN), (*max, LABEL_BOX_MAX)]
         }
-        Prompt::Points(points) if points.is_empty() => return Err(bad(decoder, "point prompt has no points".into())),
+        Prompt::Points(points) if points.is_empty() => {
+            return Err(bad(decoder, "point prompt has no points".into()));
+        }
         Prompt::Points(points) => points.iter().map(|&p| (p, LABEL_FOREGROUND)).collect(),
     };
-    if points.iter().any(|(p, _)| !p[0].is_finite() || !p[1].is_finite()) {
+    if points
+        .iter()
+        .any(|(p, _)| !p[0].is_finite() || !p[1].is_finite())
+    {
         return Err(bad(decoder, "prompt coordinates must be finite".into()));
     }
     if matches!(prompt, Prompt::Points(_)) {
@@ -173,7 +211,11 @@ fn prompt_arrays(
     let mut coords = Array3::zeros((1, count, 2));
     let mut labels = Array2::zeros((1, count));
     for (k, (point, label)) in points.iter().enumerate() {
-        let scaled = if *label == LABEL_PADDING { *point } else { geometry.to_input(*point) };
+        let scaled = if *label == LABEL_PADDING {
+            *point
+        } else {
+            geometry.to_input(*point)
+        };
         coords[[0, k, 0]] = scaled[0] as f32;
         coords[[0, k, 1]] = scaled[1] as f32;
         labels[[0, k]] = *label;
@@ -186,7 +228,11 @@ fn upsample_mask(logits: &Array2<f32>, geometry: &InputGeometry) -> GrayImage {
     let per_low_res = f64::from(geometry.input.0) / LOW_RES as f64;
     GrayImage::from_fn(geometry.original.0, geometry.original.1, |x, y| {
         let input = geometry.to_input([f64::from(x) + 0.5, f64::from(y) + 0.5]);
-        let logit = sample_bilinear(logits.view(), input[0] / per_low_res, input[1] / per_low_res);
+        let logit = sample_bilinear(
+            logits.view(),
+            input[0] / per_low_res,
+            input[1] / per_low_res,
+        );
         Luma([if logit > 0.0 { 255 } else { 0 }])
     })
 }
@@ -210,10 +256,15 @@ pub fn mask_box(mask: &GrayImage) -> Option<([f64; 2], [f64; 2])> {
 }
 
 fn grow_box((min, max): ([f64; 2], [f64; 2]), (width, height): (u32, u32)) -> Prompt {
-    let margin = [(max[0] - min[0]) * PROPAGATION_MARGIN, (max[1] - min[1]) * PROPAGATION_MARGIN];
+    let margin = [
+        (max[0] - min[0]) * PROPAGATION_MARGIN,
+        (max[1] - min[1]) * PROPAGATION_MARGIN,
+    ];
     Prompt::Box {
         min: [(min[0] - margin[0]).max(0.0), (min[1] - margin[1]).max(0.0)],
-        max: [(max[0] + margin[0]).min(f64::from(width)), (max[1] + margin[1]).min(f64::from(height))],
+        max: [
+            (max[0] + margin[0]).min(f64::from(width)),
+            (max[1] + margin[1]).min(f64::from(height)),
+        ],
     }
 }
-

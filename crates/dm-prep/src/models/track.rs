@@ -27,14 +27,22 @@ pub struct PointTracker {
 }
 
 impl PointTracker {
-    pub fn load(manifest: &Manifest, models_dir: &Path, threads: usize) -> Result<Self, ModelError> {
+    pub fn load(
+        manifest: &Manifest,
+        models_dir: &Path,
+        threads: usize,
+    ) -> Result<Self, ModelError> {
         Ok(Self {
             model: OnnxModel::load(manifest, TRACKER_ID, models_dir, threads)?,
         })
     }
 
     /// Tracks `queries` (frame-0 pixels) through `frames` (same size).
-    pub fn track(&mut self, frames: &[RgbImage], queries: &[[f64; 2]]) -> Result<Tracks2d, ModelError> {
+    pub fn track(
+        &mut self,
+        frames: &[RgbImage],
+        queries: &[[f64; 2]],
+    ) -> Result<Tracks2d, ModelError> {
         let label = format!("{} ({})", self.model.entry.model, self.model.path.display());
         let bad = |problem: String| ModelError::BadInput {
             model: label.clone(),
@@ -46,8 +54,15 @@ impl PointTracker {
         if queries.is_empty() {
             return Err(bad("no query points".into()));
         }
-        if let Some(t) = frames.iter().position(|frame| frame.dimensions() != first.dimensions()) {
-            return Err(bad(format!("frame {t} is {:?}, frame 0 {:?}", frames[t].dimensions(), first.dimensions())));
+        if let Some(t) = frames
+            .iter()
+            .position(|frame| frame.dimensions() != first.dimensions())
+        {
+            return Err(bad(format!(
+                "frame {t} is {:?}, frame 0 {:?}",
+                frames[t].dimensions(),
+                first.dimensions()
+            )));
         }
         let preprocess = self.model.entry.preprocess.clone();
         let geometry = InputGeometry::new(first.dimensions(), &preprocess);
@@ -63,9 +78,10 @@ impl PointTracker {
             query_array[[0, n, 1]] = input[0] as f32;
             query_array[[0, n, 2]] = input[1] as f32;
         }
-        let outputs = self
-            .model
-            .run(vec![("video", video.into_dyn()), ("queries", query_array.into_dyn())])?;
+        let outputs = self.model.run(vec![
+            ("video", video.into_dyn()),
+            ("queries", query_array.into_dyn()),
+        ])?;
         let tracks = outputs[0]
             .view()
             .into_dimensionality::<ndarray::Ix4>()
@@ -75,7 +91,9 @@ impl PointTracker {
             .into_dimensionality::<ndarray::Ix3>()
             .map_err(|e| bad(format!("output `visibility`: {e}")))?;
         let expected = (1, frames.len(), queries.len());
-        if (tracks.dim().0, tracks.dim().1, tracks.dim().2) != expected || visibility.dim() != expected {
+        if (tracks.dim().0, tracks.dim().1, tracks.dim().2) != expected
+            || visibility.dim() != expected
+        {
             return Err(bad(format!(
                 "outputs tracks {:?} / visibility {:?} do not match {} frames × {} queries",
                 tracks.dim(),
@@ -90,7 +108,9 @@ impl PointTracker {
             point[0] = original[0] as f32;
             point[1] = original[1] as f32;
         }
-        let visible = visibility.index_axis(Axis(0), 0).mapv(|p| p > VISIBILITY_THRESHOLD);
+        let visible = visibility
+            .index_axis(Axis(0), 0)
+            .mapv(|p| p > VISIBILITY_THRESHOLD);
         Ok(Tracks2d { positions, visible })
     }
 }

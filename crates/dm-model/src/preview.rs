@@ -20,6 +20,22 @@ pub fn camera_from_spec(spec: &dm_bundle::CameraSpec) -> Result<Camera, String> 
     .map_err(|e| e.to_string())
 }
 
+/// A renderer camera as a recorded camera (the inverse of
+/// [`camera_from_spec`]), OpenCV axes.
+pub fn spec_from_camera(name: String, camera: &Camera) -> dm_bundle::CameraSpec {
+    dm_bundle::CameraSpec {
+        name,
+        width: camera.width,
+        height: camera.height,
+        fx: camera.fx,
+        fy: camera.fy,
+        cx: camera.cx,
+        cy: camera.cy,
+        world_to_camera: camera.to_matrix_4x4(),
+        axes: dm_bundle::CAMERA_AXES_OPENCV.to_string(),
+    }
+}
+
 /// The bundle camera `index` as a renderer camera.
 pub fn bundle_camera(bundle: &Bundle, index: usize) -> Result<Camera, dm_bundle::BundleError> {
     camera_from_spec(&bundle.meta.cameras[index]).map_err(|problem| {

@@ -10,11 +10,10 @@ use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use dm_bundle::{
-    BundleMeta, BundleWriter, CAMERA_AXES_OPENCV, CameraSpec, Category, FirstFrameParticles,
-    HandSpec, Provenance, Tracks, UpAxis,
+    BundleMeta, BundleWriter, Category, FirstFrameParticles, HandSpec, Provenance, Tracks, UpAxis,
 };
 use dm_model::WorldModel;
-use dm_model::preview::{HAND_LABEL, OBJECT_LABEL, particle_frame};
+use dm_model::preview::{HAND_LABEL, OBJECT_LABEL, particle_frame, spec_from_camera};
 use dm_mpm::MaterialBounds;
 use dm_mpm::neighbors::farthest_point_sampling;
 use dm_view::Camera;
@@ -79,18 +78,11 @@ pub fn write_recording(
     let specs = cameras
         .iter()
         .enumerate()
-        .map(|(i, c)| CameraSpec {
-            name: ["main", "novel1", "novel2"]
+        .map(|(i, c)| {
+            let name = ["main", "novel1", "novel2"]
                 .get(i)
-                .map_or(format!("cam{i}"), |n| n.to_string()),
-            width: c.width,
-            height: c.height,
-            fx: c.fx,
-            fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
-            world_to_camera: c.to_matrix_4x4(),
-            axes: CAMERA_AXES_OPENCV.to_string(),
+                .map_or(format!("cam{i}"), |n| n.to_string());
+            spec_from_camera(name, c)
         })
         .collect();
     let mut meta = BundleMeta::new(frames, 1.0 / frame_dt, category_of(model, body), specs);

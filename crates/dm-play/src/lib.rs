@@ -1,15 +1,23 @@
 //! `dm-play`: the interactive playground (issue 9). A fitted world model
 //! runs live in a [`Session`] (the MPM world of `dm-model`, two hands as
-//! DCA anchors, material and damping control); [`record`] writes a session
-//! as a new scene bundle; [`encode_frame`] is the binary frame message the
-//! page receives. The HTTP/WebSocket server and the page are on branch
-//! `issue9-play-wip` (docs/playground.md).
+//! DCA anchors moved from the keyboard, material and damping set from
+//! sliders); [`server`] serves the page and streams the state over a
+//! WebSocket; [`record`] writes a session as a new scene bundle;
+//! [`encode_frame`] is the binary frame message the page receives.
+//!
+//! The page (`page/`, embedded) draws splats (or particles) as WebGL point
+//! sprites on the client; docs/playground.md has the protocol and the JSON
+//! keys, docs/ARCHITECTURE.md the reasons.
 
 pub mod record;
 pub mod scene;
+#[cfg(feature = "server")]
+pub mod server;
 pub mod session;
 
 pub use scene::{SceneView, Sprites};
+#[cfg(feature = "server")]
+pub use server::{Playground, serve};
 pub use session::{MaterialControl, PlayOptions, Session, SessionState, component_sizes};
 
 use std::path::{Path, PathBuf};

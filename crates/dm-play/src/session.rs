@@ -8,7 +8,7 @@ use std::time::Instant;
 use dm_appearance::SplatFollower;
 use dm_model::WorldModel;
 use dm_mpm::neighbors::PointIndex;
-use dm_mpm::{ParticleMaterial, PhysicsConfig, World};
+use dm_mpm::{ActuatorConfig, ActuatorMode, ParticleMaterial, PhysicsConfig, World};
 use serde::{Deserialize, Serialize};
 
 use crate::PlayError;
@@ -379,7 +379,7 @@ impl Session {
             &self.body.particles,
             self.body.particle_volume,
             self.particle_material(),
-            self.model.actuator,
+            playground_grasp(&self.model, &self.view),
         )?;
         if let Some(state) = state {
             world.set_state(&state)?;
@@ -591,6 +591,27 @@ impl Session {
 }
 
 /// Hands parked above the object, left and right of its centre.
+/// Grasp radius of the playground's hands, in particle spacings: a click
+/// holds a small patch of the object, not a single particle.
+pub const GRASP_SPACINGS: f64 = 5.0;
+
+/// The playground's hands hold rigidly (the Dirichlet mode of the `rigid`
+/// ablation) over at least [`GRASP_SPACINGS`] particle spacings. The fitted
+/// DCA gains describe a human grasp over tens of tracked anchors; one
+/// clicked point ties about 20 particles, whose spring forces at the fitted
+/// k_p cannot carry the object's weight (measured: the hand rose 12 cm, the
+/// object 0.8 mm).
+fn playground_grasp(model: &WorldModel, view: &SceneView) -> ActuatorConfig {
+    ActuatorConfig {
+        mode: ActuatorMode::Rigid,
+        grasp_radius: model
+            .actuator
+            .grasp_radius
+            .max(GRASP_SPACINGS * view.particle_spacing),
+        ..model.actuator
+    }
+}
+
 fn initial_hands(particles: &[[f64; 3]], view: &SceneView) -> [Hand; HAND_COUNT] {
     let (lo, hi) = bounds(particles);
     let up = view.up;

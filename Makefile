@@ -19,12 +19,14 @@ build: setup
 	$(CARGO) build --release --workspace --bins
 
 # Debian packages: OpenCV (dm-render's MP4 through the opencv crate, which
-# generates its bindings with libclang at build time). Installed only when
+# generates its bindings with libclang at build time) and headless Chromium
+# with its WebDriver (dm-play's browser test, issue 9). Installed only when
 # missing; as root or via sudo.
-DEB_PACKAGES ?= libopencv-dev clang libclang-dev pkg-config
+DEB_PACKAGES ?= libopencv-dev clang libclang-dev pkg-config chromium chromium-driver
 system-packages:
-	@{ pkg-config --exists opencv4 2>/dev/null && command -v clang >/dev/null && ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1; } || { \
-	  command -v apt-get >/dev/null || { echo "error: OpenCV/libclang missing and no apt-get; install $(DEB_PACKAGES) or equivalents" >&2; exit 1; }; \
+	@{ pkg-config --exists opencv4 2>/dev/null && command -v clang >/dev/null && ls /usr/lib/llvm-*/lib/libclang.so* >/dev/null 2>&1 \
+	   && command -v chromium >/dev/null && command -v chromedriver >/dev/null; } || { \
+	  command -v apt-get >/dev/null || { echo "error: system packages missing and no apt-get; install $(DEB_PACKAGES) or equivalents" >&2; exit 1; }; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  echo "installing Debian packages: $(DEB_PACKAGES)"; \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(DEB_PACKAGES) >/dev/null; }
@@ -53,6 +55,7 @@ demo: build
 	@echo "metrics      : $(OUT)/eval/metrics.md  $(OUT)/eval/metrics.json  $(OUT)/eval/plots/"
 	@python3 -c 'import json; a=json.load(open("$(OUT)/model/appearance.json")); print("splats       : %d Gaussians, frame-0 PSNR train %.1f dB, held-out camera %.1f dB (%.0f s)" % (a["gaussian_count"], a["mean_train_psnr_db"], a["held_out_psnr_db"], a["fit_seconds"]))' || true
 	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
+	@echo "playground   : ./target/release/dm-play $(OUT)/model   (prints the URL to open)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 
 # Capture to rendered model (issue 8): dm-prep's classical stages turn an

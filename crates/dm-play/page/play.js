@@ -409,7 +409,10 @@ function setupControls(scene) {
   $("show-youngs").addEventListener("change", () => { if ($("show-youngs").checked) $("show-expert").checked = false; refreshColors(); });
   $("release0").addEventListener("click", () => send({ type: "release", hand: 0 }));
   $("release1").addEventListener("click", () => send({ type: "release", hand: 1 }));
-  $("speed").addEventListener("input", () => updateHandVelocities(true));
+  $("speed").addEventListener("input", () => {
+    $("speed-out").textContent = `${parseFloat($("speed").value).toFixed(2)} m/s`;
+    updateHandVelocities(true);
+  });
   $("reset").addEventListener("click", () => {
     send({ type: "reset" });
     if (app.recording) { app.recording = false; $("record").textContent = "● Record"; $("record").classList.remove("recording"); }

@@ -15,7 +15,7 @@ pub mod scene;
 pub mod server;
 pub mod session;
 
-pub use scene::{SceneView, Sprites};
+pub use scene::{SceneView, Sprites, draw_sprites};
 #[cfg(feature = "server")]
 pub use server::{Playground, serve};
 pub use session::{MaterialControl, PlayOptions, Session, SessionState, component_sizes};

@@ -66,7 +66,9 @@ impl SceneView {
                 .domain_origin
                 .map(|o| o + physics.domain_size - margin),
         );
-        let radius = 0.5 * extent / (0.5 * FOV_DEG.to_radians()).tan() * 1.6;
+        // The object spans about 40 % of the view: room for the hands to
+        // pull it an object size away without leaving the frame.
+        let radius = 0.5 * extent / (0.5 * FOV_DEG.to_radians()).tan() * 2.4;
         let target = Point3::from(centre);
         let up_v = Vector3::from(up);
         let cameras = VIEW_AZIMUTHS_DEG
@@ -106,6 +108,31 @@ impl SceneView {
             .transform_vector(&Vector3::x());
         [r.x, r.y, r.z]
     }
+}
+
+/// Draws sprites as the page does (a depth-tested disc per sprite, its
+/// radius and degree-0 colour, no blending) over the studio floor, on the
+/// CPU: the headless counterpart of the page's WebGL draw, for
+/// `dm-bench play` and snapshots. `positions` is flat xyz, one per sprite.
+pub fn draw_sprites(
+    camera: &Camera,
+    positions: &[f32],
+    sprites: &Sprites,
+    view: &SceneView,
+) -> dm_view::Frame {
+    let splats: Vec<dm_view::Splat> = positions
+        .chunks_exact(3)
+        .zip(sprites.colors.chunks_exact(3))
+        .zip(&sprites.radii)
+        .map(|((p, c), &radius)| dm_view::Splat {
+            position: [p[0], p[1], p[2]],
+            radius,
+            color: [c[0], c[1], c[2]],
+            label: 1,
+        })
+        .collect();
+    let options = dm_view::RenderOptions::studio(view.up, view.floor_height);
+    dm_view::render(camera, &splats, &options)
 }
 
 /// A camera as the page uses it (OpenCV axes: x right, y down, z forward).

@@ -38,22 +38,48 @@ pub struct PlayOptions {
     /// Simulate at most this many particles: farthest-point samples of the
     /// model's, each carrying the volume of the ones left out (`None`: all).
     pub particles: Option<usize>,
+    /// CFL number of the substep bound, dt ≤ cfl · dx / c (`None`: the
+    /// model's, 0.3).
+    #[serde(default)]
+    pub cfl: Option<f64>,
 }
 
 /// Grid of [`PlayOptions::interactive`].
 pub const INTERACTIVE_GRID: usize = 20;
+/// CFL number of [`PlayOptions::interactive`].
+pub const INTERACTIVE_CFL: f64 = 0.5;
 /// Particles of [`PlayOptions::interactive`].
-pub const INTERACTIVE_PARTICLES: usize = 2500;
+pub const INTERACTIVE_PARTICLES: usize = 1500;
 
 impl PlayOptions {
-    /// The playground's defaults (dm-play, dm-bench play): a coarser grid
-    /// and fewer particles than the fit, so a frame simulates in real time
-    /// on two cores (measured in docs/BENCHMARKS.md).
+    /// The playground's defaults (dm-play, dm-bench play): a coarser grid,
+    /// fewer particles and a longer CFL-bounded substep than the fit, so a
+    /// frame simulates in real time on two cores (measured in
+    /// docs/BENCHMARKS.md; the splats keep their full count and follow the
+    /// fewer particles by LBS).
     pub fn interactive() -> Self {
         Self {
             grid: Some(INTERACTIVE_GRID),
             substeps: None,
             particles: Some(INTERACTIVE_PARTICLES),
+            cfl: Some(INTERACTIVE_CFL),
+        }
+    }
+
+    /// The options a command line asked for: `overrides` where given, the
+    /// rest from the fitted configuration (`exact`) or the interactive
+    /// defaults.
+    pub fn resolve(exact: bool, overrides: &PlayOptions) -> Self {
+        let base = if exact {
+            Self::default()
+        } else {
+            Self::interactive()
+        };
+        Self {
+            grid: overrides.grid.or(base.grid),
+            substeps: overrides.substeps.or(base.substeps),
+            particles: overrides.particles.or(base.particles),
+            cfl: overrides.cfl.or(base.cfl),
         }
     }
 }
@@ -192,6 +218,15 @@ impl Session {
                 });
             }
             playground_domain(&mut physics, &body.particles, grid);
+        }
+        if let Some(cfl) = options.cfl {
+            if !(cfl > 0.0 && cfl <= 1.0) {
+                return Err(PlayError::InvalidOption {
+                    option: "--cfl".into(),
+                    problem: format!("needs 0 < cfl <= 1, got {cfl}"),
+                });
+            }
+            physics.cfl = Some(cfl);
         }
         if let Some(substeps) = options.substeps {
             if substeps == 0 {

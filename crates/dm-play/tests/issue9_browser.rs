@@ -187,7 +187,7 @@ async fn issue9_playground_in_headless_chromium() {
         json!({
             "binary": CHROMIUM,
             "args": ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                     "--window-size=1300,860", "--use-angle=swiftshader",
+                     "--window-size=1366,860", "--use-angle=swiftshader",
                      "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
         }),
     );

@@ -215,6 +215,12 @@ fn issue9_bad_options_and_commands_are_errors() {
     };
     let err = open_session(&tiny.model_dir, &bad).expect_err("grid 4 is refused");
     assert!(err.to_string().contains("--grid"), "{err}");
+    let bad = PlayOptions {
+        cfl: Some(0.0),
+        ..PlayOptions::interactive()
+    };
+    let err = open_session(&tiny.model_dir, &bad).expect_err("cfl 0 is refused");
+    assert!(err.to_string().contains("--cfl"), "{err}");
     let mut session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
     assert!(session.set_hand_velocity(2, [0.0; 3]).is_err());
     assert!(session.set_hand_velocity(0, [f64::NAN, 0.0, 0.0]).is_err());

@@ -25,12 +25,15 @@ struct Args {
     /// than the fit so it runs in real time; see --exact).
     #[arg(long)]
     grid: Option<usize>,
-    /// Simulated particles (default: 2500 farthest-point samples of the model's).
+    /// Simulated particles (default: 1500 farthest-point samples of the model's).
     #[arg(long)]
     particles: Option<usize>,
     /// Substeps per frame before the CFL refinement (default: the model's).
     #[arg(long)]
     substeps: Option<usize>,
+    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5; the fit uses 0.3).
+    #[arg(long)]
+    cfl: Option<f64>,
     /// Simulate exactly as the fit did (the model's grid, domain and every
     /// particle): slower than real time on small machines.
     #[arg(long, conflicts_with_all = ["grid", "particles"])]
@@ -43,16 +46,15 @@ struct Args {
 #[tokio::main]
 async fn main() -> Result<()> {
     let args = Args::parse();
-    let base = if args.exact {
-        PlayOptions::default()
-    } else {
-        PlayOptions::interactive()
-    };
-    let options = PlayOptions {
-        grid: args.grid.or(base.grid),
-        particles: args.particles.or(base.particles),
-        substeps: args.substeps.or(base.substeps),
-    };
+    let options = PlayOptions::resolve(
+        args.exact,
+        &PlayOptions {
+            grid: args.grid,
+            substeps: args.substeps,
+            particles: args.particles,
+            cfl: args.cfl,
+        },
+    );
     let session = open_session(&args.model_dir, &options)
         .with_context(|| format!("opening the model in {}", args.model_dir.display()))?;
     let state = session.state();

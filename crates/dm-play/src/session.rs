@@ -60,7 +60,8 @@ impl PlayOptions {
     pub fn interactive() -> Self {
         Self {
             grid: Some(INTERACTIVE_GRID),
-            substeps: None,
+            // As few substeps as the CFL bound allows.
+            substeps: Some(1),
             particles: Some(INTERACTIVE_PARTICLES),
             cfl: Some(INTERACTIVE_CFL),
         }

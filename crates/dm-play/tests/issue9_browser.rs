@@ -102,6 +102,8 @@ where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = bool>,
 {
+    // Logged so that a failure shows which step the page got stuck at.
+    eprintln!("waiting for {what}");
     let start = Instant::now();
     while !ready().await {
         assert!(

@@ -96,7 +96,7 @@ enum Command {
         /// Simulated particles (default: dm-play's, 1500).
         #[arg(long)]
         particles: Option<usize>,
-        /// Substeps per frame before CFL refinement (default: the model's).
+        /// Substeps per frame before CFL refinement (default: dm-play's, 1 = as few as the CFL bound allows).
         #[arg(long)]
         substeps: Option<usize>,
         /// CFL number of the substep bound (default: dm-play's, 0.5).

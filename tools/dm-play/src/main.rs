@@ -28,7 +28,7 @@ struct Args {
     /// Simulated particles (default: 1500 farthest-point samples of the model's).
     #[arg(long)]
     particles: Option<usize>,
-    /// Substeps per frame before the CFL refinement (default: the model's).
+    /// Substeps per frame before the CFL refinement (default: 1, i.e. as few as the CFL bound allows; --exact: the model's).
     #[arg(long)]
     substeps: Option<usize>,
     /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5; the fit uses 0.3).

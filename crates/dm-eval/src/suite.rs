@@ -27,6 +27,21 @@ pub const RESULT_JSON: &str = "result.json";
 pub const SECTION_BEGIN: &str = "<!-- dm-eval suite: begin (generated; reruns replace it) -->";
 pub const SECTION_END: &str = "<!-- dm-eval suite: end -->";
 
+/// The section markers of the tables under `heading`: the benchmark
+/// suite's are [`SECTION_BEGIN`] / [`SECTION_END`], any other suite's name
+/// its heading so several suites share one document.
+fn section_markers(heading: &str) -> (String, String) {
+    if heading == DEFAULT_RESULTS_HEADING {
+        (SECTION_BEGIN.to_owned(), SECTION_END.to_owned())
+    } else {
+        let name = heading.trim_start_matches('#').trim();
+        (
+            format!("<!-- dm-eval suite \"{name}\": begin (generated; reruns replace it) -->"),
+            format!("<!-- dm-eval suite \"{name}\": end -->"),
+        )
+    }
+}
+
 /// Why the suite could not run (a diverged fit or rollout is not an error:
 /// it is recorded in the results).
 #[derive(Debug, thiserror::Error)]
@@ -66,6 +81,16 @@ pub struct SuiteFile {
     /// Camera of the image metrics (the protocol's camera 0).
     #[serde(default)]
     pub camera: usize,
+    /// The heading of the section `--results-md` replaces (or appends).
+    #[serde(default = "default_results_heading")]
+    pub results_heading: String,
+}
+
+/// The benchmark suite's section in docs/RESULTS.md.
+pub const DEFAULT_RESULTS_HEADING: &str = "## Benchmark suite (issue 5)";
+
+fn default_results_heading() -> String {
+    DEFAULT_RESULTS_HEADING.to_owned()
 }
 
 /// `dm-synth`'s recording options shared by the scenes.
@@ -651,26 +676,63 @@ fn mean_of(splits: &[&SplitMetrics]) -> Option<SplitMetrics> {
     })
 }
 
+/// Which scenes a table averages over.
+#[derive(Clone, Debug, PartialEq)]
+enum GroupKey {
+    All,
+    Category(Category),
+    /// Scenes hiding this effect (`None`: scenes without one).
+    Effect(Option<&'static str>),
+}
+
+impl GroupKey {
+    fn admits(&self, category: Category, synth: &SynthConfig) -> bool {
+        match self {
+            GroupKey::All => true,
+            GroupKey::Category(wanted) => *wanted == category,
+            GroupKey::Effect(wanted) => synth.effect.map(|e| e.name.name()) == *wanted,
+        }
+    }
+}
+
 /// The overall table, then one per category present (in the order linear,
-/// planar, volumetric).
+/// planar, volumetric), then — when any scene hides an effect — one per
+/// hidden effect and one for the scenes without (the residual ablation of
+/// issue 4 compares variants on each).
 pub fn tables(suite: &Suite, runs: &[RunResult]) -> Vec<GroupTable> {
-    let mut groups: Vec<(String, Option<Category>)> = vec![("all".into(), None)];
+    let mut groups: Vec<(String, GroupKey)> = vec![("all".into(), GroupKey::All)];
     for category in [Category::Linear, Category::Planar, Category::Volumetric] {
         if suite.scenes.iter().any(|s| s.category == category) {
-            groups.push((category_name(category).into(), Some(category)));
+            groups.push((category_name(category).into(), GroupKey::Category(category)));
+        }
+    }
+    if suite.scenes.iter().any(|s| s.config.effect.is_some()) {
+        let mut effects: Vec<Option<&'static str>> = Vec::new();
+        for scene in &suite.scenes {
+            let effect = scene.config.effect.map(|e| e.name.name());
+            if !effects.contains(&effect) {
+                effects.push(effect);
+            }
+        }
+        // Effects in suite order, the scenes without one last.
+        effects.sort_by_key(|e| e.is_none());
+        for effect in effects {
+            let name = effect.map_or("no hidden effect".to_owned(), |e| {
+                format!("hidden effect {e}")
+            });
+            groups.push((name, GroupKey::Effect(effect)));
         }
     }
     groups
         .into_iter()
-        .map(|(group, category)| {
-            let in_group = |c: Category| category.is_none_or(|wanted| wanted == c);
+        .map(|(group, key)| {
             let rows = suite
                 .variants
                 .iter()
                 .map(|variant| {
                     let runs: Vec<&RunResult> = runs
                         .iter()
-                        .filter(|r| r.variant == variant.name && in_group(r.category))
+                        .filter(|r| r.variant == variant.name && key.admits(r.category, &r.synth))
                         .collect();
                     let finished = |split: fn(&RunResult) -> Option<&SplitMetrics>| {
                         mean_of(&runs.iter().filter_map(|r| split(r)).collect::<Vec<_>>())
@@ -692,7 +754,7 @@ pub fn tables(suite: &Suite, runs: &[RunResult]) -> Vec<GroupTable> {
                 scenes: suite
                     .scenes
                     .iter()
-                    .filter(|s| in_group(s.category))
+                    .filter(|s| key.admits(s.category, &s.config))
                     .map(|s| s.id.clone())
                     .collect(),
                 rows,
@@ -791,12 +853,13 @@ pub fn replace_marked_section(
     heading: &str,
     path: &Path,
 ) -> Result<String, BundleError> {
-    let section = format!("{SECTION_BEGIN}\n\n{}\n{SECTION_END}", body.trim_end());
-    match (document.find(SECTION_BEGIN), document.find(SECTION_END)) {
+    let (begin_marker, end_marker) = section_markers(heading);
+    let section = format!("{begin_marker}\n\n{}\n{end_marker}", body.trim_end());
+    match (document.find(&begin_marker), document.find(&end_marker)) {
         (Some(begin), Some(end)) if begin < end => Ok(format!(
             "{}{section}{}",
             &document[..begin],
-            &document[end + SECTION_END.len()..]
+            &document[end + end_marker.len()..]
         )),
         (None, None) => Ok(format!(
             "{}\n\n{heading}\n\n{section}\n",
@@ -805,24 +868,23 @@ pub fn replace_marked_section(
         _ => Err(BundleError::new(
             path,
             "(suite section markers)",
-            format!("needs `{SECTION_BEGIN}` followed by `{SECTION_END}`, each once"),
+            format!("needs `{begin_marker}` followed by `{end_marker}`, each once"),
         )),
     }
 }
 
 /// Writes the tables into `results_md` between the markers (atomically).
-pub fn update_results_markdown(results_md: &Path, tables: &str) -> Result<(), BundleError> {
+pub fn update_results_markdown(
+    results_md: &Path,
+    heading: &str,
+    tables: &str,
+) -> Result<(), BundleError> {
     let document = match std::fs::read_to_string(results_md) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
         Err(e) => return Err(BundleError::io(results_md, "reading", &e)),
     };
-    let updated = replace_marked_section(
-        &document,
-        tables,
-        "## Benchmark suite (issue 5)",
-        results_md,
-    )?;
+    let updated = replace_marked_section(&document, tables, heading, results_md)?;
     write_file_atomic(results_md, |temp| std::fs::write(temp, &updated))
 }
 
@@ -833,20 +895,29 @@ mod tests {
     #[test]
     fn marked_section_is_replaced_and_appended_once() {
         let path = Path::new("RESULTS.md");
+        let suite = DEFAULT_RESULTS_HEADING;
         let first =
-            replace_marked_section("# Results\n", "table 1\n", "## Suite", path).expect("appends");
-        assert!(first.contains("## Suite") && first.contains("table 1"));
+            replace_marked_section("# Results\n", "table 1\n", suite, path).expect("appends");
+        assert!(first.contains(suite) && first.contains("table 1"));
         let second =
-            replace_marked_section(&format!("{first}\n## After\n"), "table 2", "## Suite", path)
+            replace_marked_section(&format!("{first}\n## After\n"), "table 2", suite, path)
                 .expect("replaces");
         assert!(second.contains("table 2") && !second.contains("table 1"));
         assert_eq!(second.matches(SECTION_BEGIN).count(), 1);
-        assert_eq!(second.matches("## Suite").count(), 1);
+        assert_eq!(second.matches(suite).count(), 1);
         assert!(
             second.contains("## After"),
             "text after the section is kept"
         );
-        let broken = replace_marked_section(SECTION_END, "x", "## Suite", path)
+        // Another suite's section (its own heading and markers) sits beside it.
+        let ablation = "## Residual ablation (issue 4)";
+        let third = replace_marked_section(&second, "ablation 1", ablation, path).expect("appends");
+        let fourth =
+            replace_marked_section(&third, "ablation 2", ablation, path).expect("replaces");
+        assert!(fourth.contains("table 2") && fourth.contains("ablation 2"));
+        assert!(!fourth.contains("ablation 1"));
+        assert_eq!(fourth.matches(ablation).count(), 1);
+        let broken = replace_marked_section(SECTION_END, "x", suite, path)
             .expect_err("an end marker without a begin marker is an error");
         assert!(broken.to_string().contains("RESULTS.md"), "{broken}");
     }
@@ -854,6 +925,19 @@ mod tests {
     #[test]
     fn diverged_runs_are_counted_and_marked_not_averaged() {
         let config = SynthConfig::tiny(Preset::Toy, 1);
+        // toy-b hides an effect: the tables add one group per hidden
+        // effect and one for the scenes without.
+        let drag_config = SynthConfig {
+            effect: Some("air_drag".parse().expect("effect")),
+            ..config.clone()
+        };
+        let config_of = |scene: &str| {
+            if scene == "toy-b" {
+                drag_config.clone()
+            } else {
+                config.clone()
+            }
+        };
         let variant = |name: &str, args: &[&str]| {
             let fit_args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
             PlannedVariant {
@@ -878,12 +962,13 @@ mod tests {
                 fit_args: Vec::new(),
                 variants: Vec::new(),
                 camera: 0,
+                results_heading: default_results_heading(),
             },
             scenes: ["toy-a", "toy-b"]
                 .map(|id| PlannedScene {
                     id: id.into(),
                     category: Category::Volumetric,
-                    config: config.clone(),
+                    config: config_of(id),
                 })
                 .to_vec(),
             variants: vec![
@@ -915,7 +1000,7 @@ mod tests {
             test: chamfer.map(metrics),
             fit_seconds: 1.0,
             eval_seconds: 1.0,
-            synth: config.clone(),
+            synth: config_of(scene),
             fit: variant.options.clone(),
             camera: 0,
             lpips: false,
@@ -928,7 +1013,22 @@ mod tests {
             run("toy-b", rigid, None),
         ];
         let tables = tables(&suite, &runs);
-        assert_eq!(tables.len(), 2, "all + volumetric");
+        let groups: Vec<&str> = tables.iter().map(|t| t.group.as_str()).collect();
+        assert_eq!(
+            groups,
+            [
+                "all",
+                "volumetric",
+                "hidden effect air_drag",
+                "no hidden effect"
+            ]
+        );
+        assert_eq!(tables[2].scenes, ["toy-b"]);
+        assert!(tables[2].rows[0].test.is_none(), "toy-b / full diverged");
+        assert_eq!(
+            tables[3].rows[0].test.as_ref().map(|t| t.chamfer),
+            Some(0.01)
+        );
         let full_row = &tables[0].rows[0];
         assert_eq!((full_row.runs, full_row.diverged), (2, 1));
         assert_eq!(

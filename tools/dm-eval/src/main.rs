@@ -132,7 +132,7 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
     let tables = dm_eval::suite::tables_markdown(&report);
     print!("{tables}");
     if let Some(results_md) = &args.results_md {
-        update_results_markdown(results_md, &tables)
+        update_results_markdown(results_md, &suite.file.results_heading, &tables)
             .with_context(|| format!("writing the tables into {}", results_md.display()))?;
     }
     let diverged = report

@@ -25,7 +25,7 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
         tracks: 1500,
         bundle_particles: 500,
         exact_tracks: true,
-        ..SynthConfig::new(Preset::Rope, 3)
+        ..SynthConfig::new(Preset::Rope, 7)
     };
     let truth_bundle = dir.path().join("truth");
     let capture = dir.path().join("capture");
@@ -63,6 +63,46 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
         "median track error {} m",
         score.median_m
     );
+
+    // The prepared hands move with the true ones. The synthetic hands are
+    // untextured: their point tracks stick in place, and the anchors
+    // follow the hand-mask centroid instead (dm_prep::lift).
+    let truth = Bundle::open(&truth_bundle).expect("truth bundle");
+    let last = config.frames - 1;
+    let displacement = |b: &Bundle, range: [usize; 2]| {
+        let mean = |t: usize| {
+            let n = (range[1] - range[0]) as f64;
+            [0, 1, 2].map(|a| {
+                (range[0]..range[1])
+                    .map(|k| f64::from(b.tracks.hand_points[[t, k, a]]))
+                    .sum::<f64>()
+                    / n
+            })
+        };
+        let (start, end) = (mean(0), mean(last));
+        (start, [0, 1, 2].map(|a| end[a] - start[a]))
+    };
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    assert!(!bundle.meta.hands.is_empty(), "no hand found");
+    for hand in &bundle.meta.hands {
+        let (start, moved) = displacement(&bundle, hand.anchor_range);
+        let (_, truly) = truth
+            .meta
+            .hands
+            .iter()
+            .map(|h| displacement(&truth, h.anchor_range))
+            .min_by(|a, b| {
+                let d = |p: [f64; 3]| norm([0, 1, 2].map(|i| p[i] - start[i]));
+                d(a.0).total_cmp(&d(b.0))
+            })
+            .expect("truth hands");
+        let cosine = (0..3).map(|a| moved[a] * truly[a]).sum::<f64>() / (norm(moved) * norm(truly));
+        assert!(
+            cosine > 0.8 && norm(moved) > 0.5 * norm(truly),
+            "{}: moved {moved:?}, truth {truly:?}",
+            hand.name
+        );
+    }
 
     // Everything is cached: a second run runs nothing.
     for stage in Stage::ALL {

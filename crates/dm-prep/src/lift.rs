@@ -239,10 +239,199 @@ pub fn hold_last(tracks: &mut Tracks3d) {
     }
 }
 
+/// The 3D points of a mask's pixels (every `stride`-th pixel in both
+/// directions) with a valid depth (m, row-major; NaN or ≤ 0 = none).
+pub fn mask_cloud(camera: &Camera, depth: &[f32], mask: &GrayImage, stride: u32) -> Vec<[f64; 3]> {
+    let stride = stride.max(1);
+    let mut out = Vec::new();
+    for v in (0..mask.height().min(camera.height)).step_by(stride as usize) {
+        for u in (0..mask.width().min(camera.width)).step_by(stride as usize) {
+            if mask.get_pixel(u, v)[0] == 0 {
+                continue;
+            }
+            let d = depth[(v * camera.width + u) as usize];
+            if d.is_finite() && d > 0.0 {
+                let p = camera.unproject(f64::from(u) + 0.5, f64::from(v) + 0.5, f64::from(d));
+                out.push([p.x, p.y, p.z]);
+            }
+        }
+    }
+    out
+}
+
+/// Fewest hand-mask points that make a hand's centroid at a frame.
+pub const MIN_CENTROID_POINTS: usize = 8;
+
+/// The path of a hand's mask centroid: at frame 0 the mean of the points
+/// of `clouds[0]` within `radius` of `start`, then at each frame the mean
+/// of those within `radius` of the last centroid (`None` where fewer than
+/// [`MIN_CENTROID_POINTS`]). `None` when there is no centroid at frame 0.
+pub fn hand_centroid_path(
+    start: [f64; 3],
+    clouds: &[Vec<[f64; 3]>],
+    radius: f64,
+) -> Option<Vec<Option<[f64; 3]>>> {
+    let centroid_near = |cloud: &[[f64; 3]], centre: [f64; 3]| {
+        let near: Vec<&[f64; 3]> = cloud
+            .iter()
+            .filter(|p| distance(**p, centre) <= radius)
+            .collect();
+        (near.len() >= MIN_CENTROID_POINTS).then(|| {
+            let n = near.len() as f64;
+            [0, 1, 2].map(|a| near.iter().map(|p| p[a]).sum::<f64>() / n)
+        })
+    };
+    let first = centroid_near(clouds.first()?, start)?;
+    let mut path = vec![Some(first)];
+    let mut last = first;
+    for cloud in &clouds[1..] {
+        let now = centroid_near(cloud, last);
+        if let Some(c) = now {
+            last = c;
+        }
+        path.push(now);
+    }
+    Some(path)
+}
+
+/// Replaces the point tracks of each hand that lost them with its hand-mask
+/// centroid's motion: the fallback for untextured hands, on which point
+/// tracks die or stick in place (a track on a uniform patch passes the
+/// forward–backward check standing still). `groups[g]` are hand g's anchor
+/// columns, `clouds[t]` the hand-mask points of frame t (all cameras). A
+/// hand is switched when its anchors are valid in fewer than half the
+/// later frames, or when their mean displacement departs from the
+/// centroid's by more than `max_disagreement` (median over frames); its
+/// anchors then become `anchor(0) + centroid(t) − centroid(0)`, valid where
+/// the centroid is (held otherwise). Returns the hands switched.
+pub fn follow_hand_centroids(
+    anchors: &mut Tracks3d,
+    groups: &[std::ops::Range<usize>],
+    clouds: &[Vec<[f64; 3]>],
+    radius: f64,
+    max_disagreement: f64,
+) -> Vec<usize> {
+    let frames = anchors.points.len().min(clouds.len());
+    let mut switched = Vec::new();
+    for (g, group) in groups.iter().enumerate() {
+        if group.is_empty() || frames < 2 {
+            continue;
+        }
+        let mean_at = |t: usize| {
+            let n = group.len() as f64;
+            [0, 1, 2].map(|a| group.clone().map(|k| anchors.points[t][k][a]).sum::<f64>() / n)
+        };
+        let Some(path) = hand_centroid_path(mean_at(0), &clouds[..frames], radius) else {
+            continue;
+        };
+        let c0 = path[0].unwrap_or_default();
+        let a0 = mean_at(0);
+        let later_valid = (1..frames)
+            .flat_map(|t| group.clone().map(move |k| (t, k)))
+            .filter(|&(t, k)| anchors.valid[t][k])
+            .count();
+        let mostly_lost = 2 * later_valid < (frames - 1) * group.len();
+        let mut departures: Vec<f64> = (1..frames)
+            .filter(|&t| group.clone().all(|k| anchors.valid[t][k]))
+            .filter_map(|t| {
+                let c = path[t]?;
+                let a = mean_at(t);
+                Some(distance(
+                    [0, 1, 2].map(|i| a[i] - a0[i]),
+                    [0, 1, 2].map(|i| c[i] - c0[i]),
+                ))
+            })
+            .collect();
+        departures.sort_by(f64::total_cmp);
+        let departs = departures
+            .get(departures.len() / 2)
+            .is_some_and(|&d| d > max_disagreement);
+        if !(mostly_lost || departs) {
+            continue;
+        }
+        switched.push(g);
+        let mut last = c0;
+        for (t, centroid) in path.iter().enumerate().take(frames).skip(1) {
+            if let Some(c) = centroid {
+                last = *c;
+            }
+            for k in group.clone() {
+                anchors.points[t][k] = [0, 1, 2].map(|a| anchors.points[0][k][a] + last[a] - c0[a]);
+                anchors.valid[t][k] = centroid.is_some();
+            }
+        }
+    }
+    switched
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::{Point3, Vector3};
+
+    #[test]
+    fn anchors_follow_their_hand_mask_centroid_when_their_tracks_stick() {
+        // Two hands 0.3 m apart, two anchors each; the clouds (a blob per
+        // hand, offset from the anchors as a palm is from the fingertips)
+        // move by known steps; hand 1 is out of sight at frame 2. Hand 0's
+        // tracks stay valid but stuck at frame 0's place (an untextured
+        // hand); hand 1's were lost.
+        let blob = |centre: [f64; 3]| -> Vec<[f64; 3]> {
+            (0..27)
+                .map(|i| {
+                    let o = [i % 3, (i / 3) % 3, i / 9].map(|c| (c as f64 - 1.0) * 0.01);
+                    [0, 1, 2].map(|a| centre[a] + o[a])
+                })
+                .collect()
+        };
+        let a0 = [
+            [0.0, 0.0, 0.0],
+            [0.02, 0.0, 0.0],
+            [0.3, 0.0, 0.0],
+            [0.32, 0.0, 0.0],
+        ];
+        let mut anchors = Tracks3d {
+            points: vec![a0.to_vec(); 3],
+            valid: vec![
+                vec![true; 4],
+                vec![true, true, false, false],
+                vec![true, true, false, false],
+            ],
+        };
+        let palm = [0.01, 0.0, 0.03];
+        let shift = |p: [f64; 3], d: [f64; 3]| [0, 1, 2].map(|a| p[a] + d[a]);
+        let (h0, h1) = (shift(a0[0], palm), shift(a0[2], palm));
+        let step = [0.0, 0.01, 0.02];
+        let clouds = vec![
+            [blob(h0), blob(h1)].concat(),
+            [blob(shift(h0, step)), blob(shift(h1, [-0.01, 0.0, 0.0]))].concat(),
+            blob(shift(shift(h0, step), step)),
+        ];
+        let groups = [0..2, 2..4];
+        let stuck = anchors.clone();
+        assert_eq!(
+            follow_hand_centroids(&mut anchors, &groups, &clouds, 0.09, 0.02),
+            [0, 1]
+        );
+        let close = |p: [f64; 3], q: [f64; 3]| distance(p, q) < 1e-12;
+        assert!(close(anchors.points[1][1], shift(a0[1], step)));
+        assert!(close(anchors.points[2][0], shift(a0[0], [0.0, 0.02, 0.04])));
+        assert!(close(anchors.points[1][3], shift(a0[3], [-0.01, 0.0, 0.0])));
+        assert_eq!(anchors.valid[2], [true, true, false, false]);
+        // Hand 1 lost at frame 2 keeps its last position.
+        assert!(close(anchors.points[2][2], anchors.points[1][2]));
+        // Tracks that move with the centroid are kept as they are.
+        let mut moving = anchors.clone();
+        moving.valid = vec![vec![true; 4]; 3];
+        let kept = moving.clone();
+        let none: Vec<usize> = Vec::new();
+        assert_eq!(
+            follow_hand_centroids(&mut moving, &groups[..1], &clouds, 0.09, 0.02),
+            none
+        );
+        assert_eq!(moving, kept);
+        assert_ne!(stuck, anchors);
+    }
 
     fn camera() -> Camera {
         Camera::look_at(

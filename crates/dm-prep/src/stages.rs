@@ -21,7 +21,9 @@ use crate::capture::{Capture, CaptureError};
 use crate::fill::{
     CarveView, ColoredPoints, carve_interior, fill_sheet, nearest_colors, voxel_thin,
 };
-use crate::lift::{LiftOptions, Tracks3d, fuse_cameras, hold_last, lift_camera};
+use crate::lift::{
+    LiftOptions, Tracks3d, follow_hand_centroids, fuse_cameras, hold_last, lift_camera, mask_cloud,
+};
 use crate::segment::{SegmentOptions, segment_frame};
 use crate::track2d::{TrackOptions, Tracks2d, grey_mat, query_pixels, track_points};
 
@@ -99,6 +101,12 @@ pub struct PrepOptions {
 const HAND_ANCHOR_REACH_M: f64 = 0.03;
 /// Anchors closer than this (single linkage) belong to one hand.
 const HAND_LINK_M: f64 = 0.06;
+/// A hand whose tracked anchors move this far (median) from its mask
+/// centroid's motion follows the centroid instead.
+const HAND_TRACK_DISAGREEMENT_M: f64 = 0.02;
+/// Hand-mask points within this distance of a hand's last centroid are
+/// that hand's (hands are further apart than this).
+const HAND_CENTROID_RADIUS_M: f64 = 0.09;
 /// Spread ratio under which an axis counts as thin (as the PhysTwin import).
 const THIN_AXIS_RATIO: f64 = 0.25;
 
@@ -486,11 +494,18 @@ impl Prep {
         let frames = self.capture.frame_count();
         let mut object = Vec::new();
         let mut hand = Vec::new();
+        // Hand-mask points of every frame, all cameras (centroid fallback).
+        let mut hand_clouds: Vec<Vec<[f64; 3]>> = vec![Vec::new(); frames];
         for (c, name) in self.names().iter().enumerate() {
             let depth = self.read_depth(c)?;
             for (kind, sink) in [("object", &mut object), ("hand", &mut hand)] {
                 let tracks = self.read_tracks2d(name, kind)?;
                 let masks = self.read_masks(c, kind)?;
+                if kind == "hand" {
+                    for (t, cloud) in hand_clouds.iter_mut().enumerate() {
+                        cloud.extend(mask_cloud(&self.cameras[c], &depth[t], &masks[t], 2));
+                    }
+                }
                 sink.push(lift_camera(
                     &self.cameras[c],
                     &tracks,
@@ -512,6 +527,19 @@ impl Prep {
         }
         let hand = fuse_cameras(&hand, &self.options.lift);
         let (mut anchors, hands) = hand_anchors(&hand, &object.points[0]);
+        // Point tracks die or stick on untextured hands: such hands follow
+        // their mask centroid instead (lift::follow_hand_centroids).
+        let groups: Vec<std::ops::Range<usize>> = hands
+            .iter()
+            .map(|h| h.anchor_range[0]..h.anchor_range[1])
+            .collect();
+        follow_hand_centroids(
+            &mut anchors,
+            &groups,
+            &hand_clouds,
+            HAND_CENTROID_RADIUS_M,
+            HAND_TRACK_DISAGREEMENT_M,
+        );
         hold_last(&mut object);
         hold_last(&mut anchors);
         let n = object.len();

@@ -18,6 +18,8 @@ pub mod session;
 pub use scene::{SceneView, Sprites, draw_sprites};
 #[cfg(feature = "server")]
 pub use server::{Playground, serve};
+#[cfg(feature = "cli")]
+pub use session::PlayArgs;
 pub use session::{MaterialControl, PlayOptions, Session, SessionState, component_sizes};
 
 use std::path::{Path, PathBuf};

@@ -85,6 +85,47 @@ impl PlayOptions {
     }
 }
 
+/// The command-line flags of the live simulation (dm-play, dm-bench play).
+#[cfg(feature = "cli")]
+#[derive(clap::Args, Clone, Debug, Default, PartialEq)]
+pub struct PlayArgs {
+    /// Grid cells per axis of the live simulation (default: 20, coarser
+    /// than the fit so it runs in real time; see --exact).
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Simulated particles (default: 1500 farthest-point samples of the model's).
+    #[arg(long)]
+    pub particles: Option<usize>,
+    /// Substeps per frame before the CFL refinement (default: 1, as few as
+    /// the CFL bound allows; with --exact the model's).
+    #[arg(long)]
+    pub substeps: Option<usize>,
+    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5; the
+    /// fit uses 0.3).
+    #[arg(long)]
+    pub cfl: Option<f64>,
+    /// Simulate exactly as the fit did (the model's grid, domain, particles
+    /// and substeps): slower than real time on small machines.
+    #[arg(long, conflicts_with_all = ["grid", "particles"])]
+    pub exact: bool,
+}
+
+#[cfg(feature = "cli")]
+impl PlayArgs {
+    /// The options these flags ask for ([`PlayOptions::resolve`]).
+    pub fn options(&self) -> PlayOptions {
+        PlayOptions::resolve(
+            self.exact,
+            &PlayOptions {
+                grid: self.grid,
+                substeps: self.substeps,
+                particles: self.particles,
+                cfl: self.cfl,
+            },
+        )
+    }
+}
+
 /// The simulated particles: all of the model's or a subset.
 #[derive(Clone, Debug)]
 pub struct Body {

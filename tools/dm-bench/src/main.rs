@@ -90,21 +90,8 @@ enum Command {
         /// Timed frames after 3 warm-up frames.
         #[arg(long, default_value_t = 40)]
         frames: usize,
-        /// Grid of the live simulation (default: dm-play's, 20).
-        #[arg(long)]
-        grid: Option<usize>,
-        /// Simulated particles (default: dm-play's, 1500).
-        #[arg(long)]
-        particles: Option<usize>,
-        /// Substeps per frame before CFL refinement (default: dm-play's, 1 = as few as the CFL bound allows).
-        #[arg(long)]
-        substeps: Option<usize>,
-        /// CFL number of the substep bound (default: dm-play's, 0.5).
-        #[arg(long)]
-        cfl: Option<f64>,
-        /// The model's own grid, domain and particles (as fitted).
-        #[arg(long, conflicts_with_all = ["grid", "particles"])]
-        exact: bool,
+        #[command(flatten)]
+        simulation: dm_play::PlayArgs,
     },
 }
 
@@ -167,21 +154,9 @@ fn main() -> Result<()> {
         Command::Play {
             model,
             frames,
-            grid,
-            particles,
-            substeps,
-            cfl,
-            exact,
+            simulation,
         } => {
-            let options = dm_play::PlayOptions::resolve(
-                exact,
-                &dm_play::PlayOptions {
-                    grid,
-                    substeps,
-                    particles,
-                    cfl,
-                },
-            );
+            let options = simulation.options();
             play_bench(&model, frames, &options)?
         }
     }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_play::{PlayOptions, Playground, open_session, serve};
+use dm_play::{PlayArgs, Playground, open_session, serve};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -21,23 +21,8 @@ struct Args {
     /// Address to listen on (only this machine by default).
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
-    /// Grid cells per axis of the live simulation (default: 20, coarser
-    /// than the fit so it runs in real time; see --exact).
-    #[arg(long)]
-    grid: Option<usize>,
-    /// Simulated particles (default: 1500 farthest-point samples of the model's).
-    #[arg(long)]
-    particles: Option<usize>,
-    /// Substeps per frame before the CFL refinement (default: 1, i.e. as few as the CFL bound allows; --exact: the model's).
-    #[arg(long)]
-    substeps: Option<usize>,
-    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5; the fit uses 0.3).
-    #[arg(long)]
-    cfl: Option<f64>,
-    /// Simulate exactly as the fit did (the model's grid, domain and every
-    /// particle): slower than real time on small machines.
-    #[arg(long, conflicts_with_all = ["grid", "particles"])]
-    exact: bool,
+    #[command(flatten)]
+    simulation: PlayArgs,
     /// Where recorded sessions are written as scene bundles.
     #[arg(long, default_value = "dm-play-recordings")]
     record_dir: PathBuf,
@@ -46,15 +31,7 @@ struct Args {
 #[tokio::main]
 async fn main() -> Result<()> {
     let args = Args::parse();
-    let options = PlayOptions::resolve(
-        args.exact,
-        &PlayOptions {
-            grid: args.grid,
-            substeps: args.substeps,
-            particles: args.particles,
-            cfl: args.cfl,
-        },
-    );
+    let options = args.simulation.options();
     let session = open_session(&args.model_dir, &options)
         .with_context(|| format!("opening the model in {}", args.model_dir.display()))?;
     let state = session.state();

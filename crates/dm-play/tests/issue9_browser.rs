@@ -149,6 +149,17 @@ async fn click_main(client: &Client, x: f64, y: f64, shift: bool) {
 }
 
 /// Pixel of a world point in the main view (the page's camera).
+/// The text of the element with id `id`.
+async fn element_text(client: &Client, id: &str) -> Result<String, String> {
+    client
+        .find(Locator::Id(id))
+        .await
+        .map_err(|e| e.to_string())?
+        .text()
+        .await
+        .map_err(|e| e.to_string())
+}
+
 fn project(camera: &dm_view::Camera, p: [f64; 3]) -> (f64, f64) {
     let (u, v, _) = camera
         .project(&nalgebra::Point3::from(p))
@@ -212,41 +223,20 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         .map_err(|e| format!("loading the page: {e}"))?;
     // Connected and drawing: the frame counter advances.
     wait_until("the page to receive frames", || async move {
-        let text = client.find(Locator::Id("frame")).await.ok();
-        match text {
-            Some(el) => {
-                el.text()
-                    .await
-                    .ok()
-                    .and_then(|t| t.parse::<u64>().ok())
-                    .unwrap_or(0)
-                    > 3
-            }
-            None => false,
-        }
+        element_text(client, "frame")
+            .await
+            .ok()
+            .and_then(|t| t.parse::<u64>().ok())
+            .is_some_and(|frame| frame > 3)
     })
     .await;
-    let message = client
-        .find(Locator::Id("message"))
-        .await
-        .map_err(|e| e.to_string())?
-        .text()
-        .await
-        .map_err(|e| e.to_string())?;
+    let message = element_text(client, "message").await?;
     if message.contains("could not start") {
         return Err(format!("the page failed: {message}"));
     }
 
     // fps counter updates (it is recomputed every 0.5 s from drawn frames).
-    let fps_text = || async move {
-        client
-            .find(Locator::Id("fps"))
-            .await
-            .ok()?
-            .text()
-            .await
-            .ok()
-    };
+    let fps_text = || async move { element_text(client, "fps").await.ok() };
     wait_until("a numeric fps", || async move {
         fps_text()
             .await
@@ -331,13 +321,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         (s["material"]["e_scale"].as_f64().unwrap_or(0.0) / 0.3 - 1.0).abs() < 0.025
     })
     .await;
-    let shown = client
-        .find(Locator::Id("e-scale-out"))
-        .await
-        .map_err(|e| e.to_string())?
-        .text()
-        .await
-        .map_err(|e| e.to_string())?;
+    let shown = element_text(client, "e-scale-out").await?;
     if shown != "×0.30" {
         return Err(format!("the E slider shows {shown}"));
     }

@@ -70,6 +70,10 @@ pub struct ResidualSpec {
 /// early steps make cm/s corrections and the network grows into α.
 pub const OUTPUT_SCALE: f64 = 1e-2;
 
+/// Smallest B-spline weight sum a grid node's particle-to-node average
+/// divides by (see the node features in `forward_tensors`).
+pub const MIN_NODE_WEIGHT: f64 = 1e-6;
+
 /// Fourier bands of the node-position encoding (method.md §5: L = 6).
 pub const FOURIER_BANDS: usize = 6;
 const NODE_ENCODING: usize = 3 + 6 * FOURIER_BANDS;
@@ -373,11 +377,14 @@ impl Residual {
                 let w = self.spline_weights(x_tilde, &stencil)?;
                 let width = feature.dim(1)?;
                 let cpu = &Device::Cpu;
-                let weight_sum = Tensor::zeros((stencil.nodes, 1), self.dtype, cpu)?.index_add(
-                    &stencil.node_index,
-                    &w,
-                    0,
-                )?;
+                // Nodes that only a particle's vanishing spline tail reaches
+                // have a tiny weight sum: their feature is a ratio of two
+                // tiny numbers and its derivative with respect to the sum
+                // (−a/b²) overflows f32 (NaN gradients in a toy fit). Such
+                // nodes count as nearly empty.
+                let weight_sum = Tensor::zeros((stencil.nodes, 1), self.dtype, cpu)?
+                    .index_add(&stencil.node_index, &w, 0)?
+                    .clamp(MIN_NODE_WEIGHT, f64::MAX)?;
                 let spread = feature.index_select(&stencil.owner, 0)?.broadcast_mul(&w)?;
                 let node_feature = Tensor::zeros((stencil.nodes, width), self.dtype, cpu)?
                     .index_add(&stencil.node_index, &spread, 0)?

@@ -284,3 +284,31 @@ fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
         .fold(0.0, f64::max);
     assert!(largest < 0.05, "one step moved |dv| to {largest} m/s");
 }
+
+/// Regression (issue 4, a toy fit stopped by a NaN gradient): a particle
+/// just below a cell's half-way point reaches its stencil's far corner
+/// node with a weight near f32's smallest normal; the node's feature is a
+/// ratio of two such numbers, whose derivative overflowed. The VJP must
+/// stay finite.
+#[test]
+fn issue4_vjp_is_finite_where_a_node_gets_a_vanishing_spline_weight() {
+    let s = spec(ResidualKind::Pgnd);
+    let mut inputs = cloud(40, 5);
+    // Grid coordinate 14.5 − 1.6e-6 on every axis (after f32 rounding):
+    // the far corner node's weight is (½·ε²)³ ≈ 2e-36.
+    let edge = s.grid_origin[0] + 14.5 * s.grid_dx - 1e-7;
+    inputs.x_tilde[0] = [edge; 3];
+    inputs.x_start[0] = [edge; 3];
+    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.5);
+    let dv = net.predict(&inputs).expect("predict");
+    assert!(dv.iter().flatten().all(|c| c.is_finite()));
+    let grad_dv = vec![[1.0, -0.5, 0.25]; inputs.particle_count()];
+    let grads = net.vjp(&inputs, &grad_dv).expect("vjp");
+    let bad_parameters = grads.parameters.iter().filter(|g| !g.is_finite()).count();
+    let bad_inputs = [&grads.x_tilde, &grads.v_tilde, &grads.x_start]
+        .iter()
+        .flat_map(|g| g.iter().flatten())
+        .filter(|g| !g.is_finite())
+        .count();
+    assert_eq!((bad_parameters, bad_inputs), (0, 0), "non-finite gradients");
+}

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline test bench clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video test bench clean
 
 # Everything the project needs beyond the Rust toolchain of the machine.
 setup: system-packages lpips
@@ -58,24 +58,39 @@ demo: build
 	@echo "playground   : ./target/release/dm-play $(OUT)/model   (prints the URL to open)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 
-# Capture to rendered model (issue 8): dm-prep's classical stages turn an
-# RGB-D capture directory (docs/capture.md) into a bundle, then a short fit
-# and a novel-view render. Without CAPTURE=DIR a synthetic capture is
-# written first (dm-synth --capture-out, PRESET/SEED). The monocular
-# VIDEO=clip.mp4 path needs the model stages of issue 8 (not here yet).
+# Capture to rendered model (issue 8): dm-prep turns an RGB-D capture
+# directory (docs/capture.md) into a bundle, then a short fit and a
+# novel-view render. Without CAPTURE=DIR or VIDEO=clip.mp4 a synthetic
+# capture is written first (dm-synth --capture-out, PRESET/SEED).
+# VIDEO=clip.mp4 is a monocular clip: with DEPTH=DIR (its depth frames,
+# 16-bit mm PNGs) or else the depth network in models/ (models_manifest/);
+# VIDEO_ARGS passes --intrinsics / --fov-deg / --camera-height-m.
+# `make pipeline-video` runs the VIDEO path on camera 0 of a synthetic
+# capture (the fixture clip with its depth frames).
 PIPELINE_OUT ?= out/pipeline
 PIPELINE_FIT ?= $(DEMO_FIT)
 pipeline: build
 	@rm -rf $(PIPELINE_OUT) && mkdir -p $(PIPELINE_OUT)
-	@if [ -n "$(VIDEO)" ]; then echo "error: VIDEO= (monocular) needs issue 8's model stages; use CAPTURE=DIR" >&2; exit 1; fi
-	@if [ -z "$(CAPTURE)" ]; then \
+	@if [ -z "$(CAPTURE)$(VIDEO)" ]; then \
 	  ./target/release/dm-synth --preset $(PRESET) --seed $(SEED) --exact-tracks --tracks 3000 \
 	    --out $(PIPELINE_OUT)/truth --capture-out $(PIPELINE_OUT)/capture; fi
-	./target/release/dm-prep all --capture $(if $(CAPTURE),$(CAPTURE),$(PIPELINE_OUT)/capture) --out $(PIPELINE_OUT)/scene
-	@if [ -z "$(CAPTURE)" ]; then ./target/release/dm-prep score $(PIPELINE_OUT)/scene --reference $(PIPELINE_OUT)/truth; fi
+	@if [ -n "$(VIDEO)" ]; then \
+	  ./target/release/dm-prep $(VIDEO) --out $(PIPELINE_OUT)/scene $(if $(DEPTH),--depth $(DEPTH)) $(VIDEO_ARGS); \
+	else \
+	  ./target/release/dm-prep all --capture $(if $(CAPTURE),$(CAPTURE),$(PIPELINE_OUT)/capture) --out $(PIPELINE_OUT)/scene; fi
+	@if [ -z "$(CAPTURE)$(VIDEO)" ]; then ./target/release/dm-prep score $(PIPELINE_OUT)/scene --reference $(PIPELINE_OUT)/truth; fi
 	./target/release/dm-fit $(PIPELINE_OUT)/scene --out $(PIPELINE_OUT)/model $(PIPELINE_FIT)
 	./target/release/dm-render $(PIPELINE_OUT)/model --bundle $(PIPELINE_OUT)/scene --view novel --out $(PIPELINE_OUT)/render
 	@echo "bundle: $(PIPELINE_OUT)/scene  model: $(PIPELINE_OUT)/model  video: $(PIPELINE_OUT)/render/render.mp4"
+
+FIXTURE_CLIP_DIR ?= out/fixture-clip
+pipeline-video: build
+	@rm -rf $(FIXTURE_CLIP_DIR) && mkdir -p $(FIXTURE_CLIP_DIR)
+	./target/release/dm-synth --preset $(PRESET) --seed $(SEED) --exact-tracks --tracks 3000 \
+	  --out $(FIXTURE_CLIP_DIR)/truth --capture-out $(FIXTURE_CLIP_DIR)/capture
+	$(MAKE) pipeline VIDEO=$(FIXTURE_CLIP_DIR)/capture/cam0/color.mp4 DEPTH=$(FIXTURE_CLIP_DIR)/capture/cam0/depth \
+	  VIDEO_ARGS="--intrinsics $$(python3 -c 'import json; c=json.load(open("$(FIXTURE_CLIP_DIR)/capture/calibration.json"))["cameras"][0]; print("%r,%r,%r,%r" % (c["fx"], c["fy"], c["cx"], c["cy"]))')"
+	./target/release/dm-prep score $(PIPELINE_OUT)/scene --reference $(FIXTURE_CLIP_DIR)/truth --camera0
 
 # LPIPS for dm-eval, offline at run time: a Python venv with the pinned
 # onnxruntime (its shared library is what dm-eval loads), the AlexNet weights

@@ -203,41 +203,47 @@ impl Capture {
     /// sensor measured nothing (PNG value 0).
     pub fn read_depth_m(&self, c: usize, t: usize) -> Result<Vec<f32>, CaptureError> {
         let camera = &self.calibration.cameras[c];
-        let path = depth_path(&self.dir, &camera.name, t);
-        let image = image::open(&path).map_err(|e| field_error(&path, "png", e.to_string()))?;
-        let image::DynamicImage::ImageLuma16(depth) = image else {
-            return Err(field_error(
-                &path,
-                "colour_type",
-                "depth must be 16-bit grey (millimetres)",
-            ));
-        };
-        if depth.dimensions() != (camera.width, camera.height) {
-            return Err(field_error(
-                &path,
-                "size",
-                format!(
-                    "is {}x{}, camera \"{}\" is {}x{}",
-                    depth.width(),
-                    depth.height(),
-                    camera.name,
-                    camera.width,
-                    camera.height
-                ),
-            ));
-        }
-        Ok(depth
-            .into_raw()
-            .into_iter()
-            .map(|mm| {
-                if mm == 0 {
-                    f32::NAN
-                } else {
-                    f32::from(mm) / 1000.0
-                }
-            })
-            .collect())
+        read_depth_png_m(
+            &depth_path(&self.dir, &camera.name, t),
+            camera.width,
+            camera.height,
+        )
     }
+}
+
+/// A 16-bit millimetre depth PNG of `width` x `height` in metres, row-major,
+/// NaN where nothing was measured (value 0).
+pub fn read_depth_png_m(path: &Path, width: u32, height: u32) -> Result<Vec<f32>, CaptureError> {
+    let image = image::open(path).map_err(|e| field_error(path, "png", e.to_string()))?;
+    let image::DynamicImage::ImageLuma16(depth) = image else {
+        return Err(field_error(
+            path,
+            "colour_type",
+            "depth must be 16-bit grey (millimetres)",
+        ));
+    };
+    if depth.dimensions() != (width, height) {
+        return Err(field_error(
+            path,
+            "size",
+            format!(
+                "is {}x{}, the colour frames are {width}x{height}",
+                depth.width(),
+                depth.height(),
+            ),
+        ));
+    }
+    Ok(depth
+        .into_raw()
+        .into_iter()
+        .map(|mm| {
+            if mm == 0 {
+                f32::NAN
+            } else {
+                f32::from(mm) / 1000.0
+            }
+        })
+        .collect())
 }
 
 /// Writes a capture: `calibration.json`, then per camera its colour video

@@ -9,6 +9,9 @@
 //! [`track2d`], [`lift`], [`fill`], run and cached by [`stages`]; [`score`]
 //! compares the resulting tracks with a reference bundle's.
 //!
+//! A monocular clip becomes a one-camera capture with [`monocular`]
+//! (depth frames or a depth network; the floor sets the world frame).
+//!
 //! Model stages: [`models`] (`models_manifest/` and the ONNX adapters:
 //! segmentation, point tracking, monocular depth) and [`scale`] (metric
 //! scale of monocular depth by median absolute residual).
@@ -17,6 +20,7 @@ pub mod capture;
 pub mod fill;
 pub mod lift;
 pub mod models;
+pub mod monocular;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;

@@ -35,13 +35,58 @@ pub enum ScoreError {
     Mismatch(String),
 }
 
+/// Rewrites the object tracks of `bundle` in its camera 0's frame.
+fn to_camera0(bundle: &mut Bundle, path: &Path) -> Result<(), ScoreError> {
+    let camera = bundle
+        .meta
+        .cameras
+        .first()
+        .cloned()
+        .ok_or_else(|| ScoreError::Mismatch(format!("{} has no camera 0", path.display())))?;
+    let points = &mut bundle.tracks.object_points;
+    let (frames, tracks, _) = points.dim();
+    for t in 0..frames {
+        for n in 0..tracks {
+            let world = [0, 1, 2].map(|k| f64::from(points[[t, n, k]]));
+            let camera_point = camera.world_to_camera_point(world);
+            for (k, value) in camera_point.into_iter().enumerate() {
+                points[[t, n, k]] = value as f32;
+            }
+        }
+    }
+    Ok(())
+}
+
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
+/// Where the two bundles' tracks are compared.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScoreFrame {
+    /// Their world coordinates (the same calibration).
+    World,
+    /// Each bundle's camera 0 frame: for bundles of one physical camera
+    /// whose worlds differ (a monocular clip's world comes from its floor).
+    Camera0,
+}
+
 pub fn score_tracks(bundle: &Path, reference: &Path) -> Result<TrackScore, ScoreError> {
-    let prepared = Bundle::open(bundle)?;
-    let truth = Bundle::open(reference)?;
+    score_tracks_in(bundle, reference, ScoreFrame::World)
+}
+
+/// [`score_tracks`] with the tracks compared in `frame`.
+pub fn score_tracks_in(
+    bundle: &Path,
+    reference: &Path,
+    frame: ScoreFrame,
+) -> Result<TrackScore, ScoreError> {
+    let mut prepared = Bundle::open(bundle)?;
+    let mut truth = Bundle::open(reference)?;
+    if frame == ScoreFrame::Camera0 {
+        to_camera0(&mut prepared, bundle)?;
+        to_camera0(&mut truth, reference)?;
+    }
     let (p, r) = (&prepared.tracks, &truth.tracks);
     let frames = p.frame_count();
     if r.frame_count() != frames {

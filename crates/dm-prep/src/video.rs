@@ -121,6 +121,12 @@ impl VideoSink {
 
 /// Every frame of a video, as RGB images.
 pub fn decode_video(path: &Path) -> Result<Vec<RgbImage>, CaptureError> {
+    decode_video_with_fps(path).map(|(frames, _)| frames)
+}
+
+/// Every frame of a video and its frame rate (`None` when the container
+/// does not say).
+pub fn decode_video_with_fps(path: &Path) -> Result<(Vec<RgbImage>, Option<f64>), CaptureError> {
     let cv = |e: opencv::Error| video_error(path, format!("OpenCV VideoCapture: {e}"));
     let mut capture =
         videoio::VideoCapture::from_file(utf8(path)?, videoio::CAP_ANY).map_err(cv)?;
@@ -135,5 +141,6 @@ pub fn decode_video(path: &Path) -> Result<Vec<RgbImage>, CaptureError> {
         }
         frames.push(bgr_mat_to_rgb(&mat).map_err(cv)?);
     }
-    Ok(frames)
+    let fps = capture.get(videoio::CAP_PROP_FPS).map_err(cv)?;
+    Ok((frames, (fps.is_finite() && fps > 0.0).then_some(fps)))
 }

@@ -5,8 +5,9 @@
 //! goes through the stages `segment`, `depth`, `track`, `lift`, `fill`
 //! (each cached under the work directory) or `all`, which also writes the
 //! bundle; `score` compares a bundle's tracks with a reference bundle's.
-//! `dm-prep VIDEO --out BUNDLE` (no subcommand) prepares a monocular video
-//! with the ONNX models of `models_manifest/`; `models verify` checks
+//! `dm-prep VIDEO --out BUNDLE` (no subcommand) prepares a monocular video:
+//! its depth frames (`--depth`) or a depth network of `models_manifest/`
+//! make it a one-camera capture for the same stages; `models verify` checks
 //! model files.
 
 use std::path::{Path, PathBuf};
@@ -14,10 +15,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use dm_prep::models::{Manifest, MonocularModels, VerifyStatus, default_models_dir, verify_dir};
+use dm_prep::models::{Manifest, VerifyStatus, default_models_dir, load_depth_network, verify_dir};
+use dm_prep::monocular::{DepthSource, MonocularOptions, write_monocular_capture};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
-use dm_prep::score::score_tracks;
+use dm_prep::score::{ScoreFrame, score_tracks_in};
 use dm_prep::stages::{Prep, PrepOptions, Stage, StageOutcome};
+use dm_prep::video::decode_video_with_fps;
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser, Debug)]
@@ -42,9 +45,40 @@ struct VideoArgs {
     /// Output bundle directory.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Depth frames recorded with the clip (DIR/<frame>.png, 16-bit
+    /// millimetres, e.g. a phone's LiDAR); without it the depth network of
+    /// models_manifest/ estimates them.
+    #[arg(long)]
+    depth: Option<PathBuf>,
     /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
     #[arg(long)]
     models: Option<PathBuf>,
+    /// Horizontal field of view in degrees (when --intrinsics is not given).
+    #[arg(long, default_value_t = 60.0)]
+    fov_deg: f64,
+    /// Pinhole intrinsics fx,fy,cx,cy in pixels.
+    #[arg(long, value_parser = parse_intrinsics)]
+    intrinsics: Option<[f64; 4]>,
+    /// Frames per second (default: the video's own).
+    #[arg(long)]
+    fps: Option<f64>,
+    /// Metres per unit of the depth network's output (1 for metric models).
+    #[arg(long, default_value_t = 1.0)]
+    depth_scale: f64,
+    /// The camera's height above the table or floor in metres: rescales the
+    /// depth so the fitted floor is this far below (for depth known only up
+    /// to scale).
+    #[arg(long)]
+    camera_height_m: Option<f64>,
+    /// Object category (default: inferred from the first-frame points).
+    #[arg(long, value_enum)]
+    category: Option<CategoryArg>,
+    /// Hand (skin or glove) colour as R,G,B in [0, 1].
+    #[arg(long, value_parser = parse_color)]
+    hand_color: Option<[f32; 3]>,
+    /// Replace an existing bundle at --out once the new one is complete.
+    #[arg(long)]
+    overwrite: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -121,6 +155,10 @@ struct ScoreArgs {
     /// The reference bundle (e.g. dm-synth --exact-tracks).
     #[arg(long)]
     reference: PathBuf,
+    /// Compare in each bundle's camera 0 frame instead of the world (a
+    /// monocular clip's bundle has its own, floor-based world).
+    #[arg(long)]
+    camera0: bool,
 }
 
 fn parse_color(s: &str) -> Result<[f32; 3], String> {
@@ -207,10 +245,7 @@ fn import_phystwin_command(args: &ImportPhystwinArgs) -> Result<()> {
 
 fn prep_for(args: &StageArgs) -> Result<Prep> {
     let work = args.work.clone().unwrap_or_else(|| {
-        let base = args.out.as_ref().unwrap_or(&args.capture);
-        let mut name = base.file_name().unwrap_or_default().to_os_string();
-        name.push(".work");
-        base.with_file_name(name)
+        sibling_with_suffix(args.out.as_ref().unwrap_or(&args.capture), ".work")
     });
     let mut options = PrepOptions {
         category: args.category.map(Into::into),
@@ -310,7 +345,12 @@ fn all_command(args: &AllArgs) -> Result<()> {
 }
 
 fn score_command(args: &ScoreArgs) -> Result<()> {
-    let score = score_tracks(&args.bundle, &args.reference).with_context(|| {
+    let frame = if args.camera0 {
+        ScoreFrame::Camera0
+    } else {
+        ScoreFrame::World
+    };
+    let score = score_tracks_in(&args.bundle, &args.reference, frame).with_context(|| {
         format!(
             "scoring {} against {}",
             args.bundle.display(),
@@ -407,15 +447,161 @@ fn video_command(args: &VideoArgs) -> Result<()> {
     if !video.is_file() {
         bail!("{}: no such video file", video.display());
     }
-    let manifest = load_manifest(None)?;
-    let models_dir = args.models.clone().unwrap_or_else(default_models_dir);
-    // Classical fallbacks (issue 8, capture pipeline) go here: when a model
-    // is missing, run the OpenCV fallback for that stage instead of failing.
-    let _models = MonocularModels::load(&manifest, &models_dir, 1)
-        .with_context(|| format!("preparing {} into {}", video.display(), out.display()))?;
-    bail!(
-        "{}: the models in {} load and match the manifest, but this build has no monocular lift/fill stage to assemble a bundle from their outputs (issue 8 capture pipeline)",
-        video.display(),
-        models_dir.display()
-    )
+    if let Some(dir) = &args.depth
+        && !dir.is_dir()
+    {
+        bail!("{}: --depth: no such directory", dir.display());
+    }
+    if !(args.fov_deg > 1.0 && args.fov_deg < 179.0) {
+        bail!(
+            "--fov-deg {}: must be between 1 and 179 degrees",
+            args.fov_deg
+        );
+    }
+    if !(args.depth_scale.is_finite() && args.depth_scale > 0.0) {
+        bail!(
+            "--depth-scale {}: must be a positive number",
+            args.depth_scale
+        );
+    }
+    if let Some(height) = args.camera_height_m
+        && !(height.is_finite() && height > 0.0)
+    {
+        bail!("--camera-height-m {height}: must be a positive number of metres");
+    }
+    if let Some(fps) = args.fps
+        && !(fps.is_finite() && fps > 0.0)
+    {
+        bail!("--fps {fps}: must be a positive number");
+    }
+    let options = MonocularOptions {
+        horizontal_fov_deg: args.fov_deg,
+        intrinsics: args.intrinsics,
+        fps: args.fps,
+        network_depth_scale: args.depth_scale,
+        camera_height_m: args.camera_height_m,
+        ..MonocularOptions::default()
+    };
+    let work = sibling_with_suffix(out, ".work");
+    let capture = work.join("capture");
+    let record_path = work.join("capture.json");
+    // The capture is rebuilt only when the clip, its depth or the options change.
+    let record = serde_json::json!({
+        "video": file_stamp(video)?,
+        "depth": args.depth.as_ref().map(|d| d.display().to_string()),
+        "options": options,
+    });
+    let cached = capture.is_dir()
+        && std::fs::read_to_string(&record_path)
+            .ok()
+            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+            .is_some_and(|old| old == record);
+    if cached {
+        println!("capture {}: up to date (cached)", capture.display());
+    } else {
+        write_capture(args, video, &options, &capture)?;
+        dm_bundle::write_json_atomic(&record_path, &record)?;
+    }
+    all_command(&AllArgs {
+        stage: StageArgs {
+            capture,
+            work: Some(work),
+            out: Some(out.clone()),
+            category: args.category,
+            hand_color: args.hand_color,
+        },
+        overwrite: args.overwrite,
+    })
+}
+
+/// The clip as a one-camera capture at `capture` (replacing a stale one).
+fn write_capture(
+    args: &VideoArgs,
+    video: &Path,
+    options: &MonocularOptions,
+    capture: &Path,
+) -> Result<()> {
+    let (frames, video_fps) =
+        decode_video_with_fps(video).with_context(|| format!("decoding {}", video.display()))?;
+    let fps = options.fps.or(video_fps).with_context(|| {
+        format!(
+            "{}: the video does not state its frame rate; give --fps",
+            video.display()
+        )
+    })?;
+    let mut network;
+    let depth = match &args.depth {
+        Some(dir) => DepthSource::Frames(dir.clone()),
+        None => {
+            let manifest = load_manifest(None)?;
+            let models_dir = args.models.clone().unwrap_or_else(default_models_dir);
+            network = load_depth_network(&manifest, &models_dir).with_context(|| {
+                format!(
+                    "{}: no --depth frames, so a monocular depth network is needed",
+                    video.display()
+                )
+            })?;
+            DepthSource::Network(&mut network)
+        }
+    };
+    if capture.exists() {
+        std::fs::remove_dir_all(capture)
+            .with_context(|| format!("removing the stale capture {}", capture.display()))?;
+    }
+    if let Some(parent) = capture.parent() {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
+    let bar = progress_bar()?;
+    bar.set_message("depth");
+    let mut progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let (_, floor) =
+        write_monocular_capture(video, &frames, fps, depth, options, capture, &mut progress)
+            .with_context(|| format!("preparing {} into {}", video.display(), capture.display()))?;
+    bar.finish_and_clear();
+    println!(
+        "capture {}: {} frames at {fps} fps; floor {:.3} m below the camera ({:.0} % of frame 0 on it)",
+        capture.display(),
+        frames.len(),
+        floor.offset_m,
+        100.0 * floor.inlier_fraction
+    );
+    Ok(())
+}
+
+/// Size and modification time of `path` (what the capture cache compares).
+fn file_stamp(path: &Path) -> Result<serde_json::Value> {
+    let meta = std::fs::metadata(path).with_context(|| format!("reading {}", path.display()))?;
+    let modified = meta
+        .modified()
+        .ok()
+        .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    Ok(serde_json::json!({
+        "path": path.display().to_string(),
+        "bytes": meta.len(),
+        "modified_ns": modified.to_string(),
+    }))
+}
+
+fn sibling_with_suffix(path: &Path, suffix: &str) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(suffix);
+    path.with_file_name(name)
+}
+
+fn parse_intrinsics(text: &str) -> Result<[f64; 4], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match values.as_slice() {
+        &[fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && values.iter().all(|v| v.is_finite()) => {
+            Ok([fx, fy, cx, cy])
+        }
+        _ => Err("expected fx,fy,cx,cy (four finite numbers, fx and fy > 0)".into()),
+    }
 }

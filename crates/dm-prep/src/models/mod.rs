@@ -399,61 +399,19 @@ pub(crate) fn sample_bilinear(map: ndarray::ArrayView2<'_, f32>, x: f64, y: f64)
     top * (1.0 - ty) + bottom * ty
 }
 
-/// The models a monocular video needs: segmenter, point tracker, and one
-/// depth network (Depth Anything 3, else MoGe-2).
-#[derive(Debug)]
-pub struct MonocularModels {
-    pub segmenter: segment::Segmenter,
-    pub tracker: track::PointTracker,
-    pub depth: depth::DepthEstimator,
-}
-
-impl MonocularModels {
-    /// Loads all of them; every missing or mismatching file is reported in
-    /// one error (one line each), so a user fixes them in one go.
-    pub fn load(
-        manifest: &Manifest,
-        models_dir: &Path,
-        threads: usize,
-    ) -> Result<Self, MonocularModelsError> {
-        let segmenter = segment::Segmenter::load(manifest, models_dir, threads);
-        let tracker = track::PointTracker::load(manifest, models_dir, threads);
-        let depth =
-            depth::DepthEstimator::load(manifest, depth::DEPTH_ANYTHING_ID, models_dir, threads)
-                .or_else(|first| {
-                    match depth::DepthEstimator::load(manifest, depth::MOGE_ID, models_dir, threads)
-                    {
-                        Ok(model) => Ok(model),
-                        // Both absent: report the preferred one.
-                        Err(ModelError::Missing { .. }) => Err(first),
-                        Err(other) => Err(other),
-                    }
-                });
-        match (segmenter, tracker, depth) {
-            (Ok(segmenter), Ok(tracker), Ok(depth)) => Ok(Self {
-                segmenter,
-                tracker,
-                depth,
-            }),
-            (segmenter, tracker, depth) => Err(MonocularModelsError {
-                models_dir: models_dir.to_path_buf(),
-                problems: [segmenter.err(), tracker.err(), depth.err()]
-                    .into_iter()
-                    .flatten()
-                    .collect(),
-            }),
-        }
-    }
-}
-
-/// Why [`MonocularModels::load`] failed: one [`ModelError`] per stage.
-#[derive(Debug, thiserror::Error)]
-#[error(
-    "a monocular video needs the ONNX models of models_manifest/ in {} (`dm-prep models verify {}` checks them):\n{}",
-    models_dir.display(), models_dir.display(),
-    problems.iter().map(|p| format!("  - {p}")).collect::<Vec<_>>().join("\n")
-)]
-pub struct MonocularModelsError {
-    pub models_dir: PathBuf,
-    pub problems: Vec<ModelError>,
+/// The monocular depth network: Depth Anything 3, else MoGe-2 (one thread
+/// per frame; the frames of a clip run one after another).
+pub fn load_depth_network(
+    manifest: &Manifest,
+    models_dir: &Path,
+) -> Result<depth::DepthEstimator, ModelError> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    depth::DepthEstimator::load(manifest, depth::DEPTH_ANYTHING_ID, models_dir, threads).or_else(
+        |first| match depth::DepthEstimator::load(manifest, depth::MOGE_ID, models_dir, threads) {
+            Ok(model) => Ok(model),
+            // Both absent: report the preferred one.
+            Err(ModelError::Missing { .. }) => Err(first),
+            Err(other) => Err(other),
+        },
+    )
 }

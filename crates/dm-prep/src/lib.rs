@@ -24,6 +24,7 @@ pub mod monocular;
 pub mod ndarray_raw;
 pub mod phystwin;
 pub mod pickle;
+pub mod prior;
 pub mod scale;
 pub mod score;
 pub mod segment;

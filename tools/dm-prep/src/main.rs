@@ -18,6 +18,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use dm_prep::models::{Manifest, VerifyStatus, default_models_dir, load_depth_network, verify_dir};
 use dm_prep::monocular::{DepthSource, MonocularOptions, write_monocular_capture};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
+use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use dm_prep::score::{ScoreFrame, score_tracks_in};
 use dm_prep::stages::{Prep, PrepOptions, Stage, StageOutcome};
 use dm_prep::video::decode_video_with_fps;
@@ -100,6 +101,10 @@ enum Command {
     All(AllArgs),
     /// Median 3D track error of BUNDLE against --reference.
     Score(ScoreArgs),
+    /// Shape prior: pose a mesh (OBJ, glTF, GLB) in a frame by ORB matches
+    /// and PnP-RANSAC over rendered views, then ICP + ARAP onto the frame's
+    /// object points.
+    Prior(PriorArgs),
     /// ONNX model files of models_manifest/.
     Models {
         #[command(subcommand)]
@@ -146,6 +151,28 @@ struct AllArgs {
     /// Replace an existing bundle at --out once the new one is complete.
     #[arg(long)]
     overwrite: bool,
+}
+
+#[derive(Args, Debug)]
+struct PriorArgs {
+    /// The object's mesh (.obj with vertex colours or materials, .gltf, .glb).
+    #[arg(long)]
+    mesh: PathBuf,
+    /// The first frame (PNG).
+    #[arg(long)]
+    frame: PathBuf,
+    /// The first frame's object mask (PNG, > 127 = object).
+    #[arg(long)]
+    mask: Option<PathBuf>,
+    /// Pinhole intrinsics fx,fy,cx,cy (pixels).
+    #[arg(long, value_parser = parse_intrinsics)]
+    intrinsics: [f64; 4],
+    /// First-frame object points, (N, 3) float32 .npy in the camera frame (metres).
+    #[arg(long)]
+    points: PathBuf,
+    /// Output directory: prior.json, prior_vertices.npy, prior_triangles.npy.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args, Debug)]
@@ -344,6 +371,98 @@ fn all_command(args: &AllArgs) -> Result<()> {
     Ok(())
 }
 
+fn prior_command(args: &PriorArgs) -> Result<()> {
+    let [fx, fy, cx, cy] = args.intrinsics;
+    let mesh = Mesh::load(&args.mesh)?;
+    let frame = image::open(&args.frame)
+        .with_context(|| format!("{}: reading the frame", args.frame.display()))?
+        .to_rgb8();
+    let mask = match &args.mask {
+        Some(path) => Some(
+            image::open(path)
+                .with_context(|| format!("{}: reading the mask", path.display()))?
+                .to_luma8(),
+        ),
+        None => None,
+    };
+    let points: ndarray::Array2<f32> = dm_bundle::read_npy_checked(&args.points)?;
+    if points.ncols() != 3 {
+        bail!(
+            "{}: shape {:?}, expected (N, 3)",
+            args.points.display(),
+            points.dim()
+        );
+    }
+    let points: Vec<nalgebra::Vector3<f64>> = points
+        .rows()
+        .into_iter()
+        .map(|row| nalgebra::Vector3::new(f64::from(row[0]), f64::from(row[1]), f64::from(row[2])))
+        .collect();
+    let intrinsics = Intrinsics {
+        fx,
+        fy,
+        cx,
+        cy,
+        width: frame.width(),
+        height: frame.height(),
+    };
+    let result = fit_prior(
+        &mesh,
+        &frame,
+        mask.as_ref(),
+        &intrinsics,
+        &points,
+        &PnpOptions::default(),
+        &FitOptions::default(),
+    )
+    .with_context(|| {
+        format!(
+            "fitting {} to {}",
+            args.mesh.display(),
+            args.frame.display()
+        )
+    })?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let pose_json = |pose: &nalgebra::Isometry3<f64>| {
+        let rotation = pose.rotation.to_rotation_matrix();
+        serde_json::json!({
+            "rotation": (0..3).map(|r| (0..3).map(|c| rotation[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+            "translation_m": pose.translation.vector.iter().copied().collect::<Vec<_>>(),
+        })
+    };
+    let report = serde_json::json!({
+        "mesh": args.mesh.display().to_string(),
+        "pnp_mesh_to_camera": pose_json(&result.pnp.mesh_to_camera),
+        "pnp_view": result.pnp.view,
+        "pnp_matches": result.pnp.matches,
+        "pnp_inliers": result.pnp.inliers,
+        "icp_mesh_to_camera": pose_json(&result.fit.rigid_pose),
+        "arap_mesh_to_camera": pose_json(&result.fit.deformed_pose),
+        "median_distance_before_m": result.fit.median_distance_before_m,
+        "median_distance_after_m": result.fit.median_distance_after_m,
+    });
+    let vertices = ndarray::Array2::from_shape_fn((result.fit.vertices.len(), 3), |(i, k)| {
+        result.fit.vertices[i][k] as f32
+    });
+    let triangles = ndarray::Array2::from_shape_fn((result.triangles.len(), 3), |(i, k)| {
+        result.triangles[i][k] as i32
+    });
+    dm_bundle::write_npy_file(&args.out.join("prior_vertices.npy"), &vertices)?;
+    dm_bundle::write_npy_file(&args.out.join("prior_triangles.npy"), &triangles)?;
+    dm_bundle::write_json_atomic(&args.out.join("prior.json"), &report)?;
+    println!(
+        "wrote {}: PnP {} inliers of {} matches (view {}), median point distance {:.2} mm -> {:.2} mm",
+        args.out.display(),
+        result.pnp.inliers,
+        result.pnp.matches,
+        result.pnp.view,
+        1e3 * result.fit.median_distance_before_m,
+        1e3 * result.fit.median_distance_after_m
+    );
+    Ok(())
+}
+
 fn score_command(args: &ScoreArgs) -> Result<()> {
     let frame = if args.camera0 {
         ScoreFrame::Camera0
@@ -376,6 +495,7 @@ fn main() -> ExitCode {
         Some(Command::Fill(args)) => stage_command(Stage::Fill, args),
         Some(Command::All(args)) => all_command(args),
         Some(Command::Score(args)) => score_command(args),
+        Some(Command::Prior(args)) => prior_command(args),
         Some(Command::Models {
             command: ModelsCommand::Verify { dir, manifest },
         }) => models_verify_command(dir.as_deref(), manifest.as_deref()),

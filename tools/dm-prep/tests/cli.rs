@@ -130,19 +130,27 @@ fn write_clip(path: &Path) {
     sink.finish().expect("video closes");
 }
 
-#[test]
-fn issue8_monocular_clip_without_its_model_names_the_manifest_entry() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let clip = dir.path().join("clip.mp4");
+/// Runs `dm-prep CLIP --out BUNDLE --models MODELS EXTRA..` on a fresh clip
+/// in `dir`; returns the output and the bundle path.
+fn prepare_clip(dir: &Path, models: &Path, extra: &[&str]) -> (Output, PathBuf) {
+    let clip = dir.join("clip.mp4");
     write_clip(&clip);
-    let out = dir.path().join("bundle");
-    let output = dm_prep(&[
+    let out = dir.join("bundle");
+    let mut args = vec![
         clip.as_os_str(),
         "--out".as_ref(),
         out.as_os_str(),
         "--models".as_ref(),
-        dir.path().join("no-models").as_os_str(),
-    ]);
+        models.as_os_str(),
+    ];
+    args.extend(extra.iter().map(|a| std::ffi::OsStr::new(*a)));
+    (dm_prep(&args), out)
+}
+
+#[test]
+fn issue8_monocular_clip_without_its_model_names_the_manifest_entry() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (output, out) = prepare_clip(dir.path(), &dir.path().join("no-models"), &[]);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert_eq!(output.status.code(), Some(1), "{stderr}");
     for expected in [
@@ -161,18 +169,11 @@ fn issue8_monocular_clip_without_its_model_names_the_manifest_entry() {
 #[test]
 fn issue8_monocular_clip_runs_through_the_fixture_depth_network() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let clip = dir.path().join("clip.mp4");
-    write_clip(&clip);
-    let out = dir.path().join("bundle");
-    let output = dm_prep(&[
-        clip.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-        "--models".as_ref(),
-        fixtures().join("models").as_os_str(),
-        "--camera-height-m".as_ref(),
-        "0.6".as_ref(),
-    ]);
+    let (output, out) = prepare_clip(
+        dir.path(),
+        &fixtures().join("models"),
+        &["--camera-height-m", "0.6"],
+    );
     let stdout = String::from_utf8_lossy(&output.stdout);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "{stdout}\n{stderr}");

@@ -608,7 +608,7 @@ fn video_command(args: &VideoArgs) -> Result<()> {
     // The capture is rebuilt only when the clip, its depth or the options change.
     let record = serde_json::json!({
         "video": file_stamp(video)?,
-        "depth": args.depth.as_ref().map(|d| d.display().to_string()),
+        "depth": args.depth.as_deref().map(dir_stamp).transpose()?,
         "options": options,
     });
     let cached = capture.is_dir()
@@ -705,6 +705,20 @@ fn file_stamp(path: &Path) -> Result<serde_json::Value> {
         "bytes": meta.len(),
         "modified_ns": modified.to_string(),
     }))
+}
+
+/// The stamps of every file in `dir`, sorted by name (depth frames edited
+/// in place rebuild the capture).
+fn dir_stamp(dir: &Path) -> Result<serde_json::Value> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .map(|entry| entry.map(|e| e.path()))
+        .collect::<std::io::Result<_>>()
+        .with_context(|| format!("reading {}", dir.display()))?;
+    files.sort();
+    Ok(serde_json::Value::Array(
+        files.iter().map(|f| file_stamp(f)).collect::<Result<_>>()?,
+    ))
 }
 
 fn sibling_with_suffix(path: &Path, suffix: &str) -> PathBuf {

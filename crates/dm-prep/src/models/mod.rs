@@ -399,13 +399,13 @@ pub(crate) fn sample_bilinear(map: ndarray::ArrayView2<'_, f32>, x: f64, y: f64)
     top * (1.0 - ty) + bottom * ty
 }
 
-/// The monocular depth network: Depth Anything 3, else MoGe-2 (one thread
-/// per frame; the frames of a clip run one after another).
+/// The monocular depth network: Depth Anything 3, else MoGe-2, with one
+/// intra-op thread so the depth does not depend on the core count.
 pub fn load_depth_network(
     manifest: &Manifest,
     models_dir: &Path,
 ) -> Result<depth::DepthEstimator, ModelError> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = 1;
     depth::DepthEstimator::load(manifest, depth::DEPTH_ANYTHING_ID, models_dir, threads).or_else(
         |first| match depth::DepthEstimator::load(manifest, depth::MOGE_ID, models_dir, threads) {
             Ok(model) => Ok(model),

@@ -10,8 +10,9 @@
 use std::path::{Path, PathBuf};
 
 use dm_bundle::{BundleError, CameraSpec, UpAxis};
+use dm_view::Camera;
 use image::RgbImage;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -202,13 +203,25 @@ pub fn intrinsics(options: &MonocularOptions, width: u32, height: u32) -> [f64; 
     })
 }
 
-/// Camera-frame points of every `stride`-th pixel with a valid depth.
+/// Camera-frame points of every `stride`-th pixel (at its centre) with a
+/// valid depth.
 fn unproject(
     depth_m: &[f32],
     width: u32,
+    height: u32,
     [fx, fy, cx, cy]: [f64; 4],
     stride: usize,
 ) -> Vec<[f64; 3]> {
+    // The camera frame is the world here: identity extrinsics.
+    let camera = Camera {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        world_to_camera: Isometry3::identity(),
+    };
     let width = width as usize;
     depth_m
         .iter()
@@ -221,8 +234,7 @@ fn unproject(
         })
         .map(|(i, &d)| {
             let (u, v) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);
-            let z = f64::from(d);
-            [(u - cx) / fx * z, (v - cy) / fy * z, z]
+            camera.unproject(u, v, f64::from(d)).coords.into()
         })
         .collect()
 }
@@ -271,7 +283,10 @@ pub fn write_monocular_capture(
         }
     };
     let mut depth0 = depth_of(0, first)?;
-    let mut floor = fit_floor(&unproject(&depth0, width, k, FLOOR_PIXEL_STRIDE), options.seed)
+    let mut floor = fit_floor(
+        &unproject(&depth0, width, height, k, FLOOR_PIXEL_STRIDE),
+        options.seed,
+    )
         .ok_or_else(|| {
             clip_error(format!(
                 "frame 0: no floor plane in the depth (fewer than {:.0} % of the pixels on one plane); the capture stages need the table or floor in view",

@@ -170,17 +170,24 @@ impl Fnv {
         self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
     }
     fn add_file(&mut self, path: &Path) -> Result<(), BundleError> {
-        let meta = std::fs::metadata(path).map_err(|e| BundleError::io(path, "reading", &e))?;
-        let modified = meta
-            .modified()
-            .ok()
-            .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
-            .map_or(0, |d| d.as_nanos());
+        let (bytes, modified_ns) = file_stamp(path)?;
         self.add(path.to_string_lossy().as_bytes());
-        self.add(&meta.len().to_le_bytes());
-        self.add(&modified.to_le_bytes());
+        self.add(&bytes.to_le_bytes());
+        self.add(&modified_ns.to_le_bytes());
         Ok(())
     }
+}
+
+/// A file's size in bytes and modification time (ns since the epoch; 0
+/// where the file system keeps none): what the caches compare.
+pub fn file_stamp(path: &Path) -> Result<(u64, u128), BundleError> {
+    let meta = std::fs::metadata(path).map_err(|e| BundleError::io(path, "reading", &e))?;
+    let modified_ns = meta
+        .modified()
+        .ok()
+        .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    Ok((meta.len(), modified_ns))
 }
 
 /// A capture being prepared, with its work directory.

@@ -694,16 +694,11 @@ fn write_capture(
 
 /// Size and modification time of `path` (what the capture cache compares).
 fn file_stamp(path: &Path) -> Result<serde_json::Value> {
-    let meta = std::fs::metadata(path).with_context(|| format!("reading {}", path.display()))?;
-    let modified = meta
-        .modified()
-        .ok()
-        .and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok())
-        .map_or(0, |d| d.as_nanos());
+    let (bytes, modified_ns) = dm_prep::stages::file_stamp(path)?;
     Ok(serde_json::json!({
         "path": path.display().to_string(),
-        "bytes": meta.len(),
-        "modified_ns": modified.to_string(),
+        "bytes": bytes,
+        "modified_ns": modified_ns.to_string(),
     }))
 }
 

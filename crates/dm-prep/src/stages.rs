@@ -24,8 +24,11 @@ use crate::fill::{
 use crate::lift::{
     LiftOptions, Tracks3d, follow_hand_centroids, fuse_cameras, hold_last, lift_camera, mask_cloud,
 };
+use crate::models::segment::{self as sam2, Prompt, Segmenter, mask_box};
+use crate::models::track::{self as cotracker, PointTracker};
+use crate::models::{Manifest, ModelError, default_models_dir};
 use crate::segment::{SegmentOptions, segment_frame};
-use crate::track2d::{TrackOptions, Tracks2d, grey_mat, query_pixels, track_points};
+use crate::track2d::{TrackOptions, Tracks2d, grey_mat, on_mask, query_pixels, track_points};
 
 /// The stages in the order `all` runs them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -85,6 +88,29 @@ impl Default for FillOptions {
     }
 }
 
+/// What the segment stage runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum SegmentModel {
+    /// The depth/colour model with OpenCV GrabCut (no weights).
+    #[default]
+    Grabcut,
+    /// The SAM 2 ONNX encoder + prompt decoder (models_manifest/), prompted
+    /// on frame 0 with the box of the depth/colour model's object.
+    Sam2,
+}
+
+/// What the track stage runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackModel {
+    /// Pyramidal Lucas–Kanade with a forward–backward check (no weights).
+    #[default]
+    LucasKanade,
+    /// The CoTracker3 ONNX model (models_manifest/), whole clip at once.
+    Cotracker3,
+}
+
 /// Every setting of the capture stages (part of each stage's fingerprint).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PrepOptions {
@@ -94,6 +120,37 @@ pub struct PrepOptions {
     pub fill: FillOptions,
     /// Object category; inferred from the first-frame points when `None`.
     pub category: Option<Category>,
+    #[serde(default)]
+    pub segment_model: SegmentModel,
+    #[serde(default)]
+    pub track_model: TrackModel,
+    /// Directory of the ONNX model files (default: `$DM_MODELS_DIR`, else
+    /// `./models`); read only by the ONNX choices above.
+    #[serde(default)]
+    pub models_dir: Option<PathBuf>,
+}
+
+impl PrepOptions {
+    pub fn models_dir(&self) -> PathBuf {
+        self.models_dir.clone().unwrap_or_else(default_models_dir)
+    }
+
+    /// The model files `stage` reads (their stamps join its fingerprint).
+    fn model_files(&self, stage: Stage) -> Result<Vec<PathBuf>, ModelError> {
+        let ids: &[&str] = match (stage, self.segment_model, self.track_model) {
+            (Stage::Segment, SegmentModel::Sam2, _) => &[sam2::ENCODER_ID, sam2::DECODER_ID],
+            (Stage::Track, _, TrackModel::Cotracker3) => &[cotracker::TRACKER_ID],
+            _ => &[],
+        };
+        if ids.is_empty() {
+            return Ok(Vec::new());
+        }
+        let manifest = Manifest::builtin()?;
+        let dir = self.models_dir();
+        ids.iter()
+            .map(|id| Ok(dir.join(&manifest.entry(id)?.file)))
+            .collect()
+    }
 }
 
 /// Hand tracks farther than this from every object track at frame 0 are
@@ -116,6 +173,8 @@ pub enum PrepError {
     Capture(#[from] CaptureError),
     #[error(transparent)]
     Bundle(#[from] BundleError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
     #[error("stage {stage}: OpenCV: {source}")]
     OpenCv {
         stage: &'static str,
@@ -176,6 +235,42 @@ impl Fnv {
         self.add(&modified_ns.to_le_bytes());
         Ok(())
     }
+}
+
+/// CoTracker3 tracks of `queries` as [`Tracks2d`] under the fallback's
+/// rule: a track is alive while the model sees it on its mask, and once
+/// lost it stays lost (it never jumps to another surface).
+fn model_tracks(
+    tracker: &mut PointTracker,
+    frames: &[RgbImage],
+    masks: &[GrayImage],
+    queries: &[[f32; 2]],
+) -> Result<Tracks2d, PrepError> {
+    let query_f64: Vec<[f64; 2]> = queries
+        .iter()
+        .map(|q| [f64::from(q[0]), f64::from(q[1])])
+        .collect();
+    let model = tracker.track(frames, &query_f64)?;
+    let mut points = vec![queries.to_vec()];
+    let mut alive = vec![vec![true; queries.len()]];
+    for t in 1..frames.len() {
+        let (previous, was_alive) = (&points[t - 1], &alive[t - 1]);
+        let mut next = Vec::with_capacity(queries.len());
+        let mut next_alive = Vec::with_capacity(queries.len());
+        for k in 0..queries.len() {
+            let p = [model.positions[[t, k, 0]], model.positions[[t, k, 1]]];
+            let ok = was_alive[k]
+                && model.visible[[t, k]]
+                && p[0].is_finite()
+                && p[1].is_finite()
+                && on_mask(&masks[t], p);
+            next.push(if ok { p } else { previous[k] });
+            next_alive.push(ok);
+        }
+        points.push(next);
+        alive.push(next_alive);
+    }
+    Ok(Tracks2d { points, alive })
 }
 
 /// A file's size in bytes and modification time (ns since the epoch; 0
@@ -249,9 +344,11 @@ impl Prep {
         let mut hash = Fnv::new();
         hash.add(stage.name().as_bytes());
         let settings = match stage {
-            Stage::Segment => serde_json::to_string(&self.options.segment),
+            Stage::Segment => {
+                serde_json::to_string(&(&self.options.segment, self.options.segment_model))
+            }
             Stage::Depth => Ok(String::new()),
-            Stage::Track => serde_json::to_string(&self.options.track),
+            Stage::Track => serde_json::to_string(&(&self.options.track, self.options.track_model)),
             Stage::Lift => serde_json::to_string(&self.options.lift),
             Stage::Fill => serde_json::to_string(&(&self.options.fill, self.options.category)),
         }
@@ -260,6 +357,12 @@ impl Prep {
             problem: format!("serialising settings: {e}"),
         })?;
         hash.add(settings.as_bytes());
+        // A missing model file is reported by the stage itself, by name.
+        for file in self.options.model_files(stage)? {
+            if file.is_file() {
+                hash.add_file(&file)?;
+            }
+        }
         for c in 0..self.cameras.len() {
             for file in self.capture.camera_files(c) {
                 hash.add_file(&file)?;
@@ -393,29 +496,78 @@ impl Prep {
         let up = calibration.up_axis.unit_vector();
         let frames = self.capture.frame_count();
         let total = frames * self.cameras.len();
+        // One intra-op thread: masks independent of the core count.
+        let mut sam = match self.options.segment_model {
+            SegmentModel::Grabcut => None,
+            SegmentModel::Sam2 => Some(Segmenter::load(
+                &Manifest::builtin()?,
+                &self.options.models_dir(),
+                1,
+            )?),
+        };
+        // With SAM 2 the depth/colour model only prompts it and separates
+        // the hands, so its GrabCut refinement is skipped.
+        let fallback = SegmentOptions {
+            grabcut_iterations: if sam.is_some() {
+                0
+            } else {
+                self.options.segment.grabcut_iterations
+            },
+            ..self.options.segment.clone()
+        };
         for (c, name) in self.names().iter().enumerate() {
             let colors = self.capture.read_colors(c)?;
             for kind in ["object", "hand"] {
                 let dir = out.join(name).join(kind);
                 std::fs::create_dir_all(&dir).map_err(|e| BundleError::io(&dir, "creating", &e))?;
             }
+            let mut masks = Vec::with_capacity(frames);
             for (t, rgb) in colors.iter().enumerate() {
                 let depth = self.capture.read_depth_m(c, t)?;
-                let masks = segment_frame(
-                    &self.cameras[c],
-                    rgb,
-                    &depth,
-                    up,
-                    calibration.floor_height_m,
-                    &self.options.segment,
-                )
-                .map_err(cv("segment"))?;
-                for (kind, mask) in [("object", &masks.object), ("hand", &masks.hand)] {
+                masks.push(
+                    segment_frame(
+                        &self.cameras[c],
+                        rgb,
+                        &depth,
+                        up,
+                        calibration.floor_height_m,
+                        &fallback,
+                    )
+                    .map_err(cv("segment"))?,
+                );
+                progress("segment", c * frames + t + 1, total);
+            }
+            if let Some(sam) = sam.as_mut() {
+                let (min, max) = masks
+                    .first()
+                    .and_then(|m| mask_box(&m.object))
+                    .ok_or_else(|| PrepError::Stage {
+                        stage: "segment",
+                        problem: format!(
+                            "camera {name}: nothing stands above the floor in frame 0 to prompt SAM 2 with"
+                        ),
+                    })?;
+                let objects = sam.segment_clip(&colors, &Prompt::Box { min, max })?;
+                for (frame, object) in masks.iter_mut().zip(objects) {
+                    // The hands: whatever stands above the floor and is not the object.
+                    for ((h, o), s) in frame
+                        .hand
+                        .pixels_mut()
+                        .zip(frame.object.pixels())
+                        .zip(object.pixels())
+                    {
+                        let above = h.0[0] > 0 || o.0[0] > 0;
+                        h.0[0] = if above && s.0[0] == 0 { 255 } else { 0 };
+                    }
+                    frame.object = object;
+                }
+            }
+            for (t, frame) in masks.iter().enumerate() {
+                for (kind, mask) in [("object", &frame.object), ("hand", &frame.hand)] {
                     let path = Self::mask_path(out, name, kind, t);
                     mask.save_with_format(&path, image::ImageFormat::Png)
                         .map_err(|e| BundleError::new(&path, "png", e.to_string()))?;
                 }
-                progress("segment", c * frames + t + 1, total);
             }
         }
         Ok(())
@@ -457,10 +609,17 @@ impl Prep {
 
     fn track(&self, out: &Path, progress: Progress<'_>) -> Result<(), PrepError> {
         let count = self.cameras.len();
+        let mut tracker = match self.options.track_model {
+            TrackModel::LucasKanade => None,
+            TrackModel::Cotracker3 => Some(PointTracker::load(
+                &Manifest::builtin()?,
+                &self.options.models_dir(),
+                1,
+            )?),
+        };
         for (c, name) in self.names().iter().enumerate() {
-            let greys = self
-                .capture
-                .read_colors(c)?
+            let colors = self.capture.read_colors(c)?;
+            let greys = colors
                 .iter()
                 .map(grey_mat)
                 .collect::<Result<Vec<_>, _>>()
@@ -469,8 +628,13 @@ impl Prep {
                 let masks = self.read_masks(c, kind)?;
                 let queries =
                     query_pixels(&greys[0], &masks[0], &self.options.track).map_err(cv("track"))?;
-                let tracks = track_points(&greys, Some(&masks), &queries, &self.options.track)
-                    .map_err(cv("track"))?;
+                let tracks = match tracker.as_mut() {
+                    Some(tracker) if !queries.is_empty() => {
+                        model_tracks(tracker, &colors, &masks, &queries)?
+                    }
+                    _ => track_points(&greys, Some(&masks), &queries, &self.options.track)
+                        .map_err(cv("track"))?,
+                };
                 write_tracks2d(out, name, kind, &tracks)?;
                 progress("track", 2 * c + k + 1, 2 * count);
             }
@@ -733,7 +897,22 @@ impl Prep {
             source: format!("capture {}", self.capture.dir.display()),
             created_unix_s: 0,
             notes: format!(
-                "classical fallbacks: depth/colour model + GrabCut masks, Lucas-Kanade tracks with forward-backward check, sensor depth; stages {}",
+                "{}; {}; depth from the capture; stages {}",
+                match self.options.segment_model {
+                    SegmentModel::Grabcut => "masks: depth/colour model + GrabCut".to_owned(),
+                    SegmentModel::Sam2 => format!(
+                        "masks: SAM 2 (ONNX, {}) prompted by the depth/colour model",
+                        self.options.models_dir().display()
+                    ),
+                },
+                match self.options.track_model {
+                    TrackModel::LucasKanade =>
+                        "tracks: Lucas-Kanade, forward-backward check, frame-0 anchoring".to_owned(),
+                    TrackModel::Cotracker3 => format!(
+                        "tracks: CoTracker3 (ONNX, {})",
+                        self.options.models_dir().display()
+                    ),
+                },
                 outcomes
                     .iter()
                     .map(|o| o.stage.name())

@@ -20,7 +20,7 @@ use dm_prep::monocular::{DepthSource, MonocularOptions, write_monocular_capture}
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
 use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use dm_prep::score::{ScoreFrame, score_tracks_in};
-use dm_prep::stages::{Prep, PrepOptions, Stage, StageOutcome};
+use dm_prep::stages::{Prep, PrepOptions, SegmentModel, Stage, StageOutcome, TrackModel};
 use dm_prep::video::decode_video_with_fps;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -51,9 +51,8 @@ struct VideoArgs {
     /// models_manifest/ estimates them.
     #[arg(long)]
     depth: Option<PathBuf>,
-    /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
-    #[arg(long)]
-    models: Option<PathBuf>,
+    #[command(flatten)]
+    models: ModelArgs,
     /// Horizontal field of view in degrees (when --intrinsics is not given).
     #[arg(long, default_value_t = 60.0)]
     fov_deg: f64,
@@ -87,11 +86,13 @@ enum Command {
     /// Import a PhysTwin case directory (final_data.pkl, calibrate.pkl,
     /// metadata.json, split.json, color/, depth/, optional mask/).
     ImportPhystwin(ImportPhystwinArgs),
-    /// Object and hand masks of a capture (depth/colour model + GrabCut).
+    /// Object and hand masks of a capture (depth/colour model + GrabCut, or
+    /// SAM 2 with --segment-model sam2).
     Segment(StageArgs),
     /// Sensor depth of a capture, checked and cached.
     Depth(StageArgs),
-    /// 2D tracks per camera (Lucas-Kanade with a forward-backward check).
+    /// 2D tracks per camera (Lucas-Kanade with a forward-backward check, or
+    /// CoTracker3 with --track-model cotracker3).
     Track(StageArgs),
     /// 3D object and hand tracks (depth + calibration, multi-view fusion).
     Lift(StageArgs),
@@ -125,6 +126,21 @@ enum ModelsCommand {
     },
 }
 
+/// Which models the segment and track stages run.
+#[derive(Args, Debug, Clone)]
+struct ModelArgs {
+    /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
+    #[arg(long)]
+    models: Option<PathBuf>,
+    /// Segmentation: GrabCut on the depth/colour model (no weights) or the
+    /// SAM 2 ONNX models, prompted with that model's frame-0 box.
+    #[arg(long, value_enum, default_value_t = SegmentModel::Grabcut)]
+    segment_model: SegmentModel,
+    /// 2D tracking: Lucas-Kanade (no weights) or the CoTracker3 ONNX model.
+    #[arg(long, value_enum, default_value_t = TrackModel::LucasKanade)]
+    track_model: TrackModel,
+}
+
 #[derive(Args, Debug)]
 struct StageArgs {
     /// The capture directory (calibration.json, <camera>/color.mp4, <camera>/depth/).
@@ -142,6 +158,8 @@ struct StageArgs {
     /// Hand (skin or glove) colour as R,G,B in [0, 1].
     #[arg(long, value_parser = parse_color)]
     hand_color: Option<[f32; 3]>,
+    #[command(flatten)]
+    models: ModelArgs,
 }
 
 #[derive(Args, Debug)]
@@ -276,6 +294,9 @@ fn prep_for(args: &StageArgs) -> Result<Prep> {
     });
     let mut options = PrepOptions {
         category: args.category.map(Into::into),
+        segment_model: args.models.segment_model,
+        track_model: args.models.track_model,
+        models_dir: args.models.models.clone(),
         ..PrepOptions::default()
     };
     if let Some(color) = args.hand_color {
@@ -629,6 +650,7 @@ fn video_command(args: &VideoArgs) -> Result<()> {
             out: Some(out.clone()),
             category: args.category,
             hand_color: args.hand_color,
+            models: args.models.clone(),
         },
         overwrite: args.overwrite,
     })
@@ -654,7 +676,11 @@ fn write_capture(
         Some(dir) => DepthSource::Frames(dir.clone()),
         None => {
             let manifest = load_manifest(None)?;
-            let models_dir = args.models.clone().unwrap_or_else(default_models_dir);
+            let models_dir = args
+                .models
+                .models
+                .clone()
+                .unwrap_or_else(default_models_dir);
             network = load_depth_network(&manifest, &models_dir).with_context(|| {
                 format!(
                     "{}: no --depth frames, so a monocular depth network is needed",

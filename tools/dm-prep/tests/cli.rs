@@ -184,6 +184,105 @@ fn issue8_monocular_clip_runs_through_the_fixture_depth_network() {
     assert!(out.join("bundle.json").is_file(), "{stdout}");
 }
 
+/// A bright checkered block (what the fixture SAM 2 decoder segments: a
+/// positive normalised mean inside the prompt box) sliding on a dark table
+/// seen from 0.6 m straight above, with its depth frames (block top 4 cm
+/// above the table) in `depth/`.
+fn write_bright_clip_with_depth(dir: &Path) -> (PathBuf, PathBuf) {
+    const FRAMES: u32 = 16;
+    let clip = dir.join("bright.mp4");
+    let depth = dir.join("depth");
+    std::fs::create_dir_all(&depth).expect("depth dir");
+    let on_block = |t: u32, x: u32, y: u32| (50 + t..90 + t).contains(&x) && (45..85).contains(&y);
+    let mut sink = dm_prep::video::VideoSink::create(&clip, 30.0, 160, 120).expect("video opens");
+    for t in 0..FRAMES {
+        let frame = image::RgbImage::from_fn(160, 120, |x, y| match on_block(t, x, y) {
+            true if ((x - 50 - t) / 4 + y / 4) % 2 == 0 => image::Rgb([170, 220, 250]),
+            true => image::Rgb([120, 170, 215]),
+            false => image::Rgb([60, 60, 60]),
+        });
+        sink.write(&frame).expect("frame written");
+        let millimetres =
+            image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(160, 120, |x, y| {
+                image::Luma([if on_block(t, x, y) { 560 } else { 600 }])
+            });
+        millimetres
+            .save(depth.join(format!("{t:05}.png")))
+            .expect("depth frame written");
+    }
+    sink.finish().expect("video closes");
+    (clip, depth)
+}
+
+/// The ONNX stages wired in (`--segment-model sam2 --track-model
+/// cotracker3`): a clip runs through the fixture SAM 2 and CoTracker3
+/// models, and the bundle's provenance says so.
+#[test]
+fn issue8_clip_runs_through_the_fixture_segmenter_and_tracker() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (clip, depth) = write_bright_clip_with_depth(dir.path());
+    let out = dir.path().join("bundle");
+    let models = fixtures().join("models");
+    let output = dm_prep(&[
+        clip.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--depth".as_ref(),
+        depth.as_os_str(),
+        "--models".as_ref(),
+        models.as_os_str(),
+        "--fov-deg".as_ref(),
+        "60".as_ref(),
+        "--segment-model".as_ref(),
+        "sam2".as_ref(),
+        "--track-model".as_ref(),
+        "cotracker3".as_ref(),
+    ]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stdout}\n{stderr}");
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("bundle.json")).expect("bundle.json"),
+    )
+    .expect("bundle.json parses");
+    let notes = meta["provenance"]["notes"].as_str().expect("notes");
+    for expected in ["SAM 2 (ONNX", "CoTracker3 (ONNX"] {
+        assert!(notes.contains(expected), "{expected:?} not in {notes}");
+    }
+}
+
+/// A chosen ONNX stage whose model file is absent stops with the manifest
+/// entry named, and writes no bundle.
+#[test]
+fn issue8_missing_segmenter_names_its_manifest_entry() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let models = dir.path().join("models");
+    copy_tree(&fixtures().join("models"), &models);
+    for entry in std::fs::read_dir(&models).expect("models dir") {
+        let path = entry.expect("entry").path();
+        if path.to_string_lossy().contains("sam2") {
+            std::fs::remove_file(&path).expect("remove");
+        }
+    }
+    let (output, out) = prepare_clip(
+        dir.path(),
+        &models,
+        &["--camera-height-m", "0.6", "--segment-model", "sam2"],
+    );
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    for expected in [
+        "`sam2_image_encoder`",
+        "models_manifest/sam2_image_encoder.json",
+    ] {
+        assert!(
+            stderr.contains(expected),
+            "expected '{expected}' in: {stderr}"
+        );
+    }
+    assert!(!out.exists());
+}
+
 /// `dm-prep prior` on the fixture box rendered at a planted pose: the
 /// written ARAP pose is the planted one (the library test checks the
 /// issue's 2° / 5 mm bound on two poses; this checks the command's files).

@@ -24,6 +24,7 @@ pub fn quick_fit_options() -> FitOptions {
         stage2_iters: 1,
         lr: 0.1,
         residual_lr: 5e-3,
+        residual_iters: 0,
         window: 20,
         gain_evals: 4,
         seed: 0,

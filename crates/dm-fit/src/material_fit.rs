@@ -59,6 +59,8 @@ pub struct MaterialFitConfig {
     pub frames: Option<usize>,
     /// Adam learning rate of the residual network (method.md §5: 5e-3).
     pub residual_learning_rate: f64,
+    /// Step the residual network only; the material stays as it is.
+    pub freeze_material: bool,
 }
 
 impl MaterialFitConfig {
@@ -83,6 +85,7 @@ impl Default for MaterialFitConfig {
             window: 20,
             frames: None,
             residual_learning_rate: 5e-3,
+            freeze_material: false,
         }
     }
 }
@@ -357,8 +360,22 @@ pub fn material_step(
         all_grads = all_grads.with_group(RESIDUAL_GROUP, clipped)?;
         params = params.with_group(RESIDUAL_GROUP, state.parameters.clone())?;
     }
+    if config.freeze_material {
+        // Only the residual's group is stepped: the stage's own Adam holds
+        // moments of that group alone (see `Stage::Residual`).
+        params = match params.get(RESIDUAL_GROUP) {
+            Some(values) => ParamSet::new().with_group(RESIDUAL_GROUP, values.to_vec())?,
+            None => ParamSet::new(),
+        };
+        all_grads = match all_grads.get(RESIDUAL_GROUP) {
+            Some(values) => ParamSet::new().with_group(RESIDUAL_GROUP, values.to_vec())?,
+            None => ParamSet::new(),
+        };
+    }
     adam.step(&mut params, &all_grads)?;
-    from_param_set(&params, &mut model.params);
+    if !config.freeze_material {
+        from_param_set(&params, &mut model.params);
+    }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);
     }

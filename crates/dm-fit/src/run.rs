@@ -32,6 +32,11 @@ pub struct FitOptions {
     #[arg(long, default_value_t = 5e-3)]
     #[serde(default = "default_residual_lr")]
     pub residual_lr: f64,
+    /// Gradient steps on the residual network alone after stage 2, with the
+    /// material and gains frozen (0 skips; needs --residual pgnd|mlp).
+    #[arg(long, default_value_t = 0)]
+    #[serde(default)]
+    pub residual_iters: usize,
     /// Substeps differentiated per frame (truncated BPTT).
     #[arg(long, default_value_t = 20)]
     pub window: usize,
@@ -67,6 +72,9 @@ pub enum Stage {
     Material1,
     Gains,
     Material2,
+    /// The residual network alone, the physics frozen (method.md §7 trains
+    /// the residual on top of fitted physics).
+    Residual,
     /// Stage 3: RGB-guided refinement with frozen Gaussians.
     Rgb,
     Done,
@@ -118,6 +126,7 @@ fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig
         window: options.window,
         frames: None,
         residual_learning_rate: options.residual_lr,
+        freeze_material: false,
     }
 }
 
@@ -239,14 +248,18 @@ pub fn run_fit(
         steps += 1;
         let clock = std::time::Instant::now();
         match state.stage {
-            Stage::Material1 | Stage::Material2 => {
-                let total = if state.stage == Stage::Material1 {
-                    options.iters
-                } else {
-                    options.stage2_iters
+            Stage::Material1 | Stage::Material2 | Stage::Residual => {
+                let total = match state.stage {
+                    Stage::Material1 => options.iters,
+                    Stage::Material2 => options.stage2_iters,
+                    _ if state.model.residual.is_some() => options.residual_iters,
+                    _ => 0,
                 };
                 if state.iteration < total {
-                    let config = material_config(options, total);
+                    let config = MaterialFitConfig {
+                        freeze_material: state.stage == Stage::Residual,
+                        ..material_config(options, total)
+                    };
                     let index = state.history.len();
                     let report = material_step(
                         &mut state.model,
@@ -268,13 +281,20 @@ pub fn run_fit(
                     state.history.push(report);
                     state.iteration += 1;
                 } else {
-                    state.stage = if state.stage == Stage::Material1 {
-                        Stage::Gains
-                    } else if options.rgb_iters > 0 {
-                        Stage::Rgb
-                    } else {
-                        Stage::Done
+                    let residual_stage_runs =
+                        options.residual_iters > 0 && state.model.residual.is_some();
+                    let previous = state.stage;
+                    state.stage = match previous {
+                        Stage::Material1 => Stage::Gains,
+                        Stage::Material2 if residual_stage_runs => Stage::Residual,
+                        _ if options.rgb_iters > 0 => Stage::Rgb,
+                        _ => Stage::Done,
                     };
+                    // The residual stage's Adam holds the network's group
+                    // only; it starts fresh, and so does the stage after it.
+                    if residual_stage_runs && previous != Stage::Material1 {
+                        state.adam = material_config(options, 0).adam(&state.model)?;
+                    }
                     state.iteration = 0;
                 }
             }

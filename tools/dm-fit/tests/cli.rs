@@ -132,3 +132,59 @@ fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
     assert!(!result.status.success());
     assert!(String::from_utf8_lossy(&result.stderr).contains("different options"));
 }
+
+/// `--residual-iters N` (issue 4): N steps on the residual network after
+/// stage 2 with the physics frozen: the material fields equal those of the
+/// same fit without the stage, the network's weights do not.
+#[test]
+fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    dm_synth::generate(
+        &SynthConfig::tiny(Preset::Rope, 5),
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let without = dir.path().join("without");
+    let with = dir.path().join("with");
+    // FAST without its stage 3 (which would move the material again).
+    let physics_then_residual = |out: &Path, residual_iters: &str| {
+        let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+            .arg(&scene)
+            .arg("--out")
+            .arg(out)
+            .args(["--iters", "2", "--stage2-iters", "1", "--gain-evals", "4"])
+            .args(["--patches", "8", "--rgb-iters", "0", "--residual", "pgnd"])
+            .args(["--residual-iters", residual_iters])
+            .output()
+            .expect("dm-fit runs");
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    };
+    physics_then_residual(&without, "0");
+    physics_then_residual(&with, "2");
+    let history_len = |model: &Path| {
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(model.join("fit_report.json")).expect("report"))
+                .expect("json");
+        report["loss"]["history"].as_array().expect("history").len()
+    };
+    assert_eq!((history_len(&without), history_len(&with)), (3, 5));
+    for frozen in ["youngs_pa.npy", "poisson.npy", "expert_weights.npy"] {
+        assert!(
+            std::fs::read(without.join(frozen)).expect(frozen)
+                == std::fs::read(with.join(frozen)).expect(frozen),
+            "{frozen} changed in the residual stage"
+        );
+    }
+    assert!(
+        std::fs::read(without.join("residual.safetensors")).expect("weights")
+            != std::fs::read(with.join("residual.safetensors")).expect("weights"),
+        "the residual stage did not change the network"
+    );
+}

@@ -2,10 +2,11 @@
 //! and a fit paused and resumed gives the same model as an uninterrupted one.
 
 use dm_synth::{Preset, SynthConfig};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-const FAST: &[&str] = &[
+/// Stages 1–2 in a few steps.
+const FAST_PHYSICS: &[&str] = &[
     "--iters",
     "2",
     "--stage2-iters",
@@ -14,17 +15,24 @@ const FAST: &[&str] = &[
     "4",
     "--patches",
     "8",
-    "--rgb-iters",
-    "2",
 ];
 
+/// `dm-fit SCENE --out OUT` with FAST_PHYSICS, two stage-3 steps and `extra`.
 fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
+    fit_with(
+        scene,
+        out,
+        &[FAST_PHYSICS, &["--rgb-iters", "2"], extra].concat(),
+    )
+}
+
+/// `dm-fit SCENE --out OUT ARGS..`, which must succeed.
+fn fit_with(scene: &Path, out: &Path, args: &[&str]) -> Output {
     let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
         .arg(scene)
         .arg("--out")
         .arg(out)
-        .args(FAST)
-        .args(extra)
+        .args(args)
         .output()
         .expect("dm-fit runs");
     assert!(
@@ -35,17 +43,23 @@ fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
     output
 }
 
-#[test]
-fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
+/// A tiny dm-synth scene at DIR/scene.
+fn tiny_scene(dir: &Path, preset: Preset, seed: u64) -> PathBuf {
+    let scene = dir.join("scene");
     dm_synth::generate(
-        &SynthConfig::tiny(Preset::Cloth, 4),
+        &SynthConfig::tiny(preset, seed),
         &scene,
-        &dir.path().join("t.json"),
+        &dir.join("t.json"),
         &mut |_, _, _| {},
     )
     .expect("scene");
+    scene
+}
+
+#[test]
+fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = tiny_scene(dir.path(), Preset::Cloth, 4);
 
     let whole = dir.path().join("whole");
     fit(&scene, &whole, &[]);
@@ -112,14 +126,7 @@ fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
 #[test]
 fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Rope, 4),
-        &scene,
-        &dir.path().join("t.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
+    let scene = tiny_scene(dir.path(), Preset::Rope, 4);
     let out = dir.path().join("model");
     fit(&scene, &out, &["--stop-after", "1"]);
     let result = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
@@ -139,31 +146,16 @@ fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
 #[test]
 fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Rope, 5),
-        &scene,
-        &dir.path().join("t.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
+    let scene = tiny_scene(dir.path(), Preset::Rope, 5);
     let without = dir.path().join("without");
     let with = dir.path().join("with");
-    // FAST without its stage 3 (which would move the material again).
+    // No stage 3: it would move the material again.
     let physics_then_residual = |out: &Path, residual_iters: &str| {
-        let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
-            .arg(&scene)
-            .arg("--out")
-            .arg(out)
-            .args(["--iters", "2", "--stage2-iters", "1", "--gain-evals", "4"])
-            .args(["--patches", "8", "--rgb-iters", "0", "--residual", "pgnd"])
-            .args(["--residual-iters", residual_iters])
-            .output()
-            .expect("dm-fit runs");
-        assert!(
-            output.status.success(),
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
+        let stages = ["--rgb-iters", "0", "--residual", "pgnd", "--residual-iters"];
+        fit_with(
+            &scene,
+            out,
+            &[FAST_PHYSICS, &stages, &[residual_iters]].concat(),
         );
     };
     physics_then_residual(&without, "0");

@@ -17,13 +17,11 @@ const FAST_PHYSICS: &[&str] = &[
     "8",
 ];
 
-/// `dm-fit SCENE --out OUT` with FAST_PHYSICS, two stage-3 steps and `extra`.
+/// `dm-fit SCENE --out OUT` with FAST_PHYSICS, no residual-only stage, two
+/// stage-3 steps and `extra`.
 fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
-    fit_with(
-        scene,
-        out,
-        &[FAST_PHYSICS, &["--rgb-iters", "2"], extra].concat(),
-    )
+    let stages = ["--residual-iters", "0", "--rgb-iters", "2"];
+    fit_with(scene, out, &[FAST_PHYSICS, &stages, extra].concat())
 }
 
 /// `dm-fit SCENE --out OUT ARGS..`, which must succeed.

@@ -73,6 +73,50 @@ impl Tracks2d {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+
+    /// Tracks that start at `queries` in frame 0, all alive.
+    pub fn starting_at(queries: &[[f32; 2]]) -> Self {
+        Tracks2d {
+            points: vec![queries.to_vec()],
+            alive: vec![vec![true; queries.len()]],
+        }
+    }
+
+    /// Appends the next frame. A live track moves to `found(k)` when that is
+    /// a finite position; otherwise it is lost for the rest of the clip and
+    /// holds its last position (it never jumps to another surface).
+    /// `found` is asked about live tracks only.
+    pub fn push_frame<E>(
+        &mut self,
+        mut found: impl FnMut(usize) -> Result<Option<[f32; 2]>, E>,
+    ) -> Result<(), E> {
+        let (Some(previous), Some(was_alive)) = (self.points.last(), self.alive.last()) else {
+            return Ok(());
+        };
+        let mut next = Vec::with_capacity(previous.len());
+        let mut next_alive = Vec::with_capacity(previous.len());
+        for (k, (&last, &alive)) in previous.iter().zip(was_alive).enumerate() {
+            let moved = if alive { found(k)? } else { None };
+            match moved.filter(|p| p[0].is_finite() && p[1].is_finite()) {
+                Some(p) => {
+                    next.push(p);
+                    next_alive.push(true);
+                }
+                None => {
+                    next.push(last);
+                    next_alive.push(false);
+                }
+            }
+        }
+        self.points.push(next);
+        self.alive.push(next_alive);
+        Ok(())
+    }
+}
+
+/// Distance between two OpenCV points (px).
+fn distance(a: Point2f, b: Point2f) -> f32 {
+    ((a.x - b.x).powi(2) + (a.y - b.y).powi(2)).sqrt()
 }
 
 /// Grey 8-bit `Mat` of an RGB image.
@@ -211,15 +255,12 @@ pub fn track_points(
             alive: vec![Vec::new(); frames.len()],
         });
     }
-    let mut points = vec![queries.to_vec()];
-    let mut alive = vec![vec![true; n]];
+    let mut tracks = Tracks2d::starting_at(queries);
     // OpenCV's LK works in pixel-corner coordinates (pixel centre = integer).
     let to_cv = |p: [f32; 2]| Point2f::new(p[0] - 0.5, p[1] - 0.5);
     let origin: Vector<Point2f> = queries.iter().map(|&p| to_cv(p)).collect();
     for t in 1..frames.len() {
-        let previous = &points[t - 1];
-        let was_alive = &alive[t - 1];
-        let current: Vector<Point2f> = previous.iter().map(|&p| to_cv(p)).collect();
+        let current: Vector<Point2f> = tracks.points[t - 1].iter().map(|&p| to_cv(p)).collect();
         let (forward, status_f) = lk(&frames[t - 1], &frames[t], &current, options)?;
         let (backward, status_b) = lk(&frames[t], &frames[t - 1], &forward, options)?;
         let anchored = if options.anchor_px > 0.0 && t > 1 {
@@ -229,33 +270,21 @@ pub fn track_points(
         } else {
             None
         };
-        let mut next = Vec::with_capacity(n);
-        let mut next_alive = Vec::with_capacity(n);
-        for k in 0..n {
+        tracks.push_frame(|k| {
             let f = forward.get(k)?;
-            let b = backward.get(k)?;
-            let c = current.get(k)?;
-            let fb = ((b.x - c.x).powi(2) + (b.y - c.y).powi(2)).sqrt();
-            let mut p = [f.x + 0.5, f.y + 0.5];
-            if let Some(Some(a)) = anchored.as_ref().map(|a| a[k]) {
-                p = a;
-            }
-            let mut ok = was_alive[k]
-                && status_f.get(k)? == 1
+            let fb = distance(backward.get(k)?, current.get(k)?);
+            let p = match anchored.as_ref().and_then(|a| a[k]) {
+                Some(a) => a,
+                None => [f.x + 0.5, f.y + 0.5],
+            };
+            let ok = status_f.get(k)? == 1
                 && status_b.get(k)? == 1
                 && fb <= options.forward_backward_px
-                && p[0].is_finite()
-                && p[1].is_finite();
-            if ok && let Some(masks) = masks {
-                ok = on_mask(&masks[t], p);
-            }
-            next.push(if ok { p } else { previous[k] });
-            next_alive.push(ok);
-        }
-        points.push(next);
-        alive.push(next_alive);
+                && masks.is_none_or(|masks| on_mask(&masks[t], p));
+            Ok::<_, opencv::Error>(ok.then_some(p))
+        })?;
     }
-    Ok(Tracks2d { points, alive })
+    Ok(tracks)
 }
 
 /// Whether `p` (pixel-centre coordinates) falls on a set pixel of `mask`.
@@ -283,9 +312,9 @@ fn anchor_to_first_frame(
     let (back, status_b) = lk_seeded(to, first, &anchored, Some(origin), options)?;
     let mut out = Vec::with_capacity(origin.len());
     for k in 0..origin.len() {
-        let (a, b, o, s) = (anchored.get(k)?, back.get(k)?, origin.get(k)?, seed.get(k)?);
-        let fb = ((b.x - o.x).powi(2) + (b.y - o.y).powi(2)).sqrt();
-        let shift = ((a.x - s.x).powi(2) + (a.y - s.y).powi(2)).sqrt();
+        let a = anchored.get(k)?;
+        let fb = distance(back.get(k)?, origin.get(k)?);
+        let shift = distance(a, seed.get(k)?);
         let ok = status_f.get(k)? == 1
             && status_b.get(k)? == 1
             && fb <= options.forward_backward_px

@@ -363,14 +363,12 @@ pub fn material_step(
     if config.freeze_material {
         // Only the residual's group is stepped: the stage's own Adam holds
         // moments of that group alone (see `Stage::Residual`).
-        params = match params.get(RESIDUAL_GROUP) {
-            Some(values) => ParamSet::new().with_group(RESIDUAL_GROUP, values.to_vec())?,
-            None => ParamSet::new(),
+        let residual_only = |set: &ParamSet| match set.get(RESIDUAL_GROUP) {
+            Some(values) => ParamSet::new().with_group(RESIDUAL_GROUP, values.to_vec()),
+            None => Ok(ParamSet::new()),
         };
-        all_grads = match all_grads.get(RESIDUAL_GROUP) {
-            Some(values) => ParamSet::new().with_group(RESIDUAL_GROUP, values.to_vec())?,
-            None => ParamSet::new(),
-        };
+        params = residual_only(&params)?;
+        all_grads = residual_only(&all_grads)?;
     }
     adam.step(&mut params, &all_grads)?;
     if !config.freeze_material {

@@ -173,8 +173,10 @@ pub enum PrepError {
     Capture(#[from] CaptureError),
     #[error(transparent)]
     Bundle(#[from] BundleError),
+    /// Boxed: a model error (manifest entry, file, signature) is several
+    /// times larger than the others and would bloat every stage's Result.
     #[error(transparent)]
-    Model(#[from] ModelError),
+    Model(Box<ModelError>),
     #[error("stage {stage}: OpenCV: {source}")]
     OpenCv {
         stage: &'static str,
@@ -185,6 +187,12 @@ pub enum PrepError {
         stage: &'static str,
         problem: String,
     },
+}
+
+impl From<ModelError> for PrepError {
+    fn from(error: ModelError) -> Self {
+        PrepError::Model(Box::new(error))
+    }
 }
 
 fn cv(stage: &'static str) -> impl Fn(opencv::Error) -> PrepError {
@@ -251,26 +259,15 @@ fn model_tracks(
         .map(|q| [f64::from(q[0]), f64::from(q[1])])
         .collect();
     let model = tracker.track(frames, &query_f64)?;
-    let mut points = vec![queries.to_vec()];
-    let mut alive = vec![vec![true; queries.len()]];
+    let mut tracks = Tracks2d::starting_at(queries);
     for t in 1..frames.len() {
-        let (previous, was_alive) = (&points[t - 1], &alive[t - 1]);
-        let mut next = Vec::with_capacity(queries.len());
-        let mut next_alive = Vec::with_capacity(queries.len());
-        for k in 0..queries.len() {
+        tracks.push_frame(|k| {
             let p = [model.positions[[t, k, 0]], model.positions[[t, k, 1]]];
-            let ok = was_alive[k]
-                && model.visible[[t, k]]
-                && p[0].is_finite()
-                && p[1].is_finite()
-                && on_mask(&masks[t], p);
-            next.push(if ok { p } else { previous[k] });
-            next_alive.push(ok);
-        }
-        points.push(next);
-        alive.push(next_alive);
+            let seen = model.visible[[t, k]] && on_mask(&masks[t], p);
+            Ok::<_, PrepError>(seen.then_some(p))
+        })?;
     }
-    Ok(Tracks2d { points, alive })
+    Ok(tracks)
 }
 
 /// A file's size in bytes and modification time (ns since the epoch; 0

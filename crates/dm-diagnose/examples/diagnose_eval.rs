@@ -1,12 +1,15 @@
 //! The full hidden-effect evaluation of issue 6:
 //!
-//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]
+//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS]
 //!
 //! synthesises HIDDEN scenes (default 16) with a seeded random effect,
 //! preset and magnitude and NULL scenes (default 4) without, fits and
 //! diagnoses each, and writes OUT_DIR/results.jsonl (one line per scene,
 //! appended as scenes finish, so an interrupted run keeps its scenes and a
-//! rerun skips finished steps) and OUT_DIR/confusion.md.
+//! rerun skips finished steps) and OUT_DIR/confusion.md over every line
+//! of results.jsonl. With `SHARD/SHARDS` (e.g. `0/2`) the run takes every
+//! SHARDS-th scene from the SHARD-th, so several processes can share one
+//! OUT_DIR.
 
 use dm_diagnose::DiagnoseOptions;
 use dm_diagnose::evaluation::{SceneResult, confusion_markdown, run_scene};
@@ -22,6 +25,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let hidden: u64 = args.get(1).map_or(Ok(16), |s| s.parse())?;
     let null: u64 = args.get(2).map_or(Ok(4), |s| s.parse())?;
     let first: u64 = args.get(3).map_or(Ok(1000), |s| s.parse())?;
+    let (shard, shards): (usize, usize) = match args.get(4) {
+        None => (0, 1),
+        Some(s) => {
+            let (a, b) = s.split_once('/').ok_or("SHARD/SHARDS, e.g. 0/2")?;
+            (a.parse()?, b.parse::<usize>()?.max(1))
+        }
+    };
     std::fs::create_dir_all(&out)?;
     let options = DiagnoseOptions::default();
     let mut results: Vec<SceneResult> = Vec::new();
@@ -41,7 +51,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         i += 1;
     }
-    for (seed, is_null) in jobs {
+    for (seed, is_null) in jobs.into_iter().skip(shard).step_by(shards) {
         let dir = out.join(format!(
             "{}{}",
             if is_null { "null" } else { "hidden" },
@@ -68,8 +78,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .append(true)
                     .open(out.join("results.jsonl"))?;
                 writeln!(f, "{}", serde_json::to_string(&r)?)?;
+                drop(f);
                 results.push(r);
-                std::fs::write(out.join("confusion.md"), confusion_markdown(&results))?;
+                // Every shard's scenes so far, not only this process's.
+                let all: Vec<SceneResult> = std::fs::read_to_string(out.join("results.jsonl"))?
+                    .lines()
+                    .filter_map(|l| serde_json::from_str(l).ok())
+                    .collect();
+                std::fs::write(out.join("confusion.md"), confusion_markdown(&all))?;
             }
             Err(e) => println!("seed {seed}: failed: {e}"),
         }

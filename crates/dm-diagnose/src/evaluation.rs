@@ -35,7 +35,7 @@ pub fn quick_fit_options() -> FitOptions {
 }
 
 /// One evaluated scene.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct SceneResult {
     pub seed: u64,
     pub preset: String,
@@ -67,6 +67,7 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
     };
     let mut config = SynthConfig::diagnosis(preset, seed);
     config.effect = effect;
+    config.action = effect.and_then(|e| e.name.exciting_action());
     (config, effect)
 }
 
@@ -180,4 +181,26 @@ pub fn confusion_markdown(results: &[SceneResult]) -> String {
         s.push_str(&format!(" {correct}/{} | {gain} |\n", in_row.len()));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn issue6_friction_scenes_are_filmed_with_a_push() {
+        let mut friction_draws = 0;
+        for seed in 0..300 {
+            let (config, effect) = scene_config(seed, false);
+            let effect = effect.expect("a hidden scene has an effect");
+            if effect.name == dm_synth::EffectName::FloorFriction {
+                friction_draws += 1;
+                assert_eq!(config.resolved_action(), dm_synth::Action::Push);
+            } else {
+                assert_eq!(config.action, None, "seed {seed} keeps its own action");
+            }
+            assert_eq!(scene_config(seed, true).0.action, None);
+        }
+        assert!(friction_draws > 10, "{friction_draws} friction draws");
+    }
 }

@@ -1,0 +1,87 @@
+//! Issue 6: the density candidate redistributes the fitted mass (a uniform
+//! fit has already matched the mean stiffness-to-density ratio) and tries
+//! two orthogonal axes (a square cloth's first axis is arbitrary).
+
+use dm_diagnose::candidates::{Candidate, trials};
+use dm_diagnose::signatures::Signatures;
+use dm_model::{ModelOptions, ResidualKind, WorldModel};
+use dm_synth::{Preset, SynthConfig};
+
+/// Relative mismatch allowed between total masses: the factors are summed
+/// in f64 over ~800 particles, so only rounding separates them.
+const MASS_RTOL: f64 = 1e-9;
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|i| a[i] * b[i]).sum()
+}
+
+fn total_mass(model: &WorldModel) -> f64 {
+    let factors = model
+        .extension
+        .density_factors(&model.particles)
+        .unwrap_or_else(|| vec![1.0; model.particles.len()]);
+    model.physics.density * model.particle_volume * factors.iter().sum::<f64>()
+}
+
+#[test]
+fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config = SynthConfig::tiny(Preset::Cloth, 7);
+    let scene = dir.path().join("scene");
+    dm_synth::generate(
+        &config,
+        &scene,
+        &dir.path().join("truth.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
+    let options = ModelOptions {
+        residual: ResidualKind::None,
+        ..ModelOptions::default()
+    };
+    let model = WorldModel::from_bundle(&bundle, &options).expect("model");
+    let quiet = Signatures {
+        drag_rate_per_s: 0.0,
+        drag_t: 0.0,
+        floor_rate_per_s: 0.0,
+        floor_t: 0.0,
+        horizontal_accel: [0.0; 3],
+        horizontal_t: 0.0,
+        hand_shift_frames: 0.0,
+        sag_slope: 0.0,
+        sag_t: 0.0,
+    };
+    let density = trials(Candidate::DensityVariation, &model, &quiet);
+    assert_eq!(density.len(), 4, "two axes, both ends");
+    let base_mass = total_mass(&model);
+    let mut axes = Vec::new();
+    for trial in &density {
+        let mass = total_mass(&trial.model);
+        assert!(
+            ((mass - base_mass) / base_mass).abs() < MASS_RTOL,
+            "{:?}: total mass {mass} vs fitted {base_mass}",
+            trial.parameters
+        );
+        let factors = trial
+            .model
+            .extension
+            .density_factors(&trial.model.particles)
+            .expect("a gradient");
+        let (lo, hi) = factors
+            .iter()
+            .fold((f64::INFINITY, 0.0_f64), |(l, h), f| (l.min(*f), h.max(*f)));
+        assert!((hi / lo - 3.5).abs() < 1e-9, "heavy end 3.5× the light one");
+        let p = &trial.parameters;
+        axes.push([p["axis_x"], p["axis_y"], p["axis_z"]]);
+    }
+    for axis in &axes {
+        assert!((dot(*axis, *axis) - 1.0).abs() < 1e-6, "unit axis {axis:?}");
+    }
+    assert!(
+        dot(axes[0], axes[2]).abs() < 1e-6,
+        "second axis {:?} not orthogonal to the first {:?}",
+        axes[2],
+        axes[0]
+    );
+}

@@ -50,6 +50,8 @@ pub enum DiagnoseError {
     Bundle(#[from] dm_bundle::BundleError),
     #[error(transparent)]
     Fit(#[from] dm_fit::material_fit::FitError),
+    #[error(transparent)]
+    Chart(#[from] dm_view::ViewError),
     #[error("{path}: {problem}")]
     Input { path: PathBuf, problem: String },
     #[error("writing {path}: {problem}")]

@@ -1,11 +1,14 @@
-//! The report's PNGs. No font is bundled (as in dm-view's charts), so
-//! axes and ranges are written in report.md beside each picture.
+//! The report's PNGs: charts with titles, labelled axes and legends
+//! (plotters with dm-view's bundled font); the error map is drawn pixel by
+//! pixel, its axes and colour range given in report.md's caption.
 
 use crate::analysis::{AccelSample, dot, norm};
 use crate::{DiagnoseError, Diagnosis};
 use dm_bundle::{Bundle, Split, write_file_atomic};
-use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
+use dm_view::ViewError;
+use dm_view::chart::{ChartOptions, ChartSeries, FONT_FAMILY, ValueScale, line_chart};
 use image::{Rgb, RgbImage};
+use plotters::prelude::*;
 use std::path::Path;
 
 pub(crate) struct PlotInputs<'a> {
@@ -67,14 +70,6 @@ fn dot_at(img: &mut RgbImage, x: f64, y: f64, r: i64, color: [u8; 3]) {
     }
 }
 
-fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), color: [u8; 3]) {
-    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
-    for i in 0..=steps {
-        let t = i as f64 / steps as f64;
-        dot_at(img, a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1), 0, color);
-    }
-}
-
 /// Maps data ranges onto a canvas with a 30 px margin.
 struct Frame {
     w: f64,
@@ -118,6 +113,31 @@ impl Frame {
     }
 }
 
+fn rgb(c: [u8; 3]) -> RGBColor {
+    RGBColor(c[0], c[1], c[2])
+}
+
+type PlotResult = Result<(), Box<dyn std::error::Error>>;
+
+/// A `w` × `h` white picture drawn by `draw` with plotters (the bundled
+/// font registered first).
+fn draw_with_plotters(
+    w: u32,
+    h: u32,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> PlotResult,
+) -> Result<RgbImage, ViewError> {
+    dm_view::chart::register_font()?;
+    let mut buffer = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (w, h)).into_drawing_area();
+        draw(&root).map_err(|e| ViewError::Chart(e.to_string()))?;
+        root.present()
+            .map_err(|e| ViewError::Chart(e.to_string()))?;
+    }
+    RgbImage::from_raw(w, h, buffer)
+        .ok_or_else(|| ViewError::Chart("chart buffer has the wrong size".into()))
+}
+
 fn canvas(w: u32, h: u32) -> RgbImage {
     RgbImage::from_pixel(w, h, Rgb([255, 255, 255]))
 }
@@ -140,25 +160,35 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
     let mut files = Vec::new();
 
     // 1. Track error per frame, before (red) and after (blue) the extension.
+    let base_mm: Vec<f64> = p.base_track.iter().map(|v| 1e3 * v).collect();
+    let after_mm: Option<Vec<f64>> = p
+        .extended_track
+        .map(|a| a.iter().map(|v| 1e3 * v).collect());
+    let extended_label = format!("extended with {}", p.diagnosis.cause);
     let mut series = vec![ChartSeries {
-        values: p.base_track,
+        values: &base_mm,
         color: RED,
+        label: "fitted model",
     }];
-    if let Some(after) = p.extended_track {
+    if let Some(after) = &after_mm {
         series.push(ChartSeries {
             values: after,
             color: BLUE,
+            label: &extended_label,
         });
     }
     let chart = line_chart(
         &series,
         &ChartOptions {
             width: 640,
-            height: 300,
+            height: 320,
             scale: ValueScale::Linear,
             markers: vec![p.split.test[0]],
+            title: "Track error per frame (dashed: held-out test split starts)".into(),
+            x_label: "frame".into(),
+            y_label: "track error (mm)".into(),
         },
-    );
+    )?;
     save(&chart, out, "error_vs_time.png")?;
     let max_err = p
         .base_track
@@ -171,7 +201,7 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         file: "error_vs_time.png".into(),
         caption: format!(
             "Track error per frame (x: frame 0–{}, y: 0–{:.1} mm). Red: fitted model; blue: \
-             extended model. Dotted line: start of the held-out test split (frame {}).",
+             extended model. Dashed line: start of the held-out test split (frame {}).",
             p.base_track.len().saturating_sub(1),
             1e3 * max_err,
             p.split.test[0]
@@ -264,56 +294,86 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         .collect();
     let amax = robust_abs_max(&along_v);
     let vmax = robust_abs_max(&speeds);
-    let mut img = canvas(900, 420);
-    {
-        let left = Frame {
-            w: 450.0,
-            h: 420.0,
-            x: (0.0, vmax),
-            y: (-amax, amax),
-        };
-        line(&mut img, left.px(0.0, 0.0), left.px(vmax, 0.0), GREY);
-        line(&mut img, left.px(0.0, -amax), left.px(0.0, amax), GREY);
-        for (v, a) in speeds.iter().zip(&along_v) {
-            if *v <= vmax && a.abs() <= amax {
-                let (x, y) = left.px(*v, *a);
-                dot_at(&mut img, x, y, 1, BLUE);
-            }
-        }
-        // The fitted drag line r = −k v.
-        let k = p.diagnosis.signatures.drag_rate_per_s;
-        line(
-            &mut img,
-            left.px(0.0, 0.0),
-            left.px(vmax, (-k * vmax).clamp(-amax, amax)),
-            RED,
-        );
-    }
     let (east, north) = crate::candidates::horizontal_basis(p.up);
     let hx: Vec<f64> = p.samples.iter().map(|s| dot(s.residual, east)).collect();
     let hy: Vec<f64> = p.samples.iter().map(|s| dot(s.residual, north)).collect();
     let hmax = robust_abs_max(&hx).max(robust_abs_max(&hy));
-    {
-        let right = Frame {
-            w: 450.0,
-            h: 420.0,
-            x: (-hmax, hmax),
-            y: (-hmax, hmax),
-        };
-        let mut sub = canvas(450, 420);
-        line(&mut sub, right.px(-hmax, 0.0), right.px(hmax, 0.0), GREY);
-        line(&mut sub, right.px(0.0, -hmax), right.px(0.0, hmax), GREY);
-        for (x, y) in hx.iter().zip(&hy) {
-            if x.abs() <= hmax && y.abs() <= hmax {
-                let (px, py) = right.px(*x, *y);
-                dot_at(&mut sub, px, py, 1, BLUE);
-            }
-        }
-        let m = p.diagnosis.signatures.horizontal_accel;
-        let (mx, my) = right.px(dot(m, east), dot(m, north));
-        dot_at(&mut sub, mx, my, 6, RED);
-        image::imageops::overlay(&mut img, &sub, 450, 0);
-    }
+    let k = p.diagnosis.signatures.drag_rate_per_s;
+    let mean = p.diagnosis.signatures.horizontal_accel;
+    let img = draw_with_plotters(900, 420, |root| {
+        let (left, right) = root.split_horizontally(450);
+        let mut chart = ChartBuilder::on(&left)
+            .caption("Residual along the velocity", (FONT_FAMILY, 16))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..vmax, -amax..amax)?;
+        chart
+            .configure_mesh()
+            .x_desc("speed (m/s)")
+            .y_desc("residual · v̂ (m/s²)")
+            .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
+            .label_style((FONT_FAMILY, 12))
+            .axis_desc_style((FONT_FAMILY, 13))
+            .draw()?;
+        chart.draw_series(
+            speeds
+                .iter()
+                .zip(&along_v)
+                .filter(|(v, a)| **v <= vmax && a.abs() <= amax)
+                .map(|(v, a)| Circle::new((*v, *a), 1, rgb(BLUE).filled())),
+        )?;
+        chart
+            .draw_series(LineSeries::new(
+                [(0.0, 0.0), (vmax, (-k * vmax).clamp(-amax, amax))],
+                rgb(RED).stroke_width(2),
+            ))?
+            .label(format!("fit r = −k v, k = {k:.2} /s"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], rgb(RED).stroke_width(2)));
+        chart
+            .configure_series_labels()
+            .label_font((FONT_FAMILY, 12))
+            .background_style(WHITE.mix(0.85))
+            .border_style(rgb(GREY))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()?;
+        let mut chart = ChartBuilder::on(&right)
+            .caption("Horizontal residual", (FONT_FAMILY, 16))
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(-hmax..hmax, -hmax..hmax)?;
+        chart
+            .configure_mesh()
+            .x_desc("east (m/s²)")
+            .y_desc("north (m/s²)")
+            .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
+            .label_style((FONT_FAMILY, 12))
+            .axis_desc_style((FONT_FAMILY, 13))
+            .draw()?;
+        chart.draw_series(
+            hx.iter()
+                .zip(&hy)
+                .filter(|(x, y)| x.abs() <= hmax && y.abs() <= hmax)
+                .map(|(x, y)| Circle::new((*x, *y), 1, rgb(BLUE).filled())),
+        )?;
+        chart
+            .draw_series(std::iter::once(Circle::new(
+                (dot(mean, east), dot(mean, north)),
+                6,
+                rgb(RED).filled(),
+            )))?
+            .label("mean (a tilted gravity moves it off 0)")
+            .legend(|(x, y)| Circle::new((x + 9, y), 4, rgb(RED).filled()));
+        chart
+            .configure_series_labels()
+            .label_font((FONT_FAMILY, 12))
+            .background_style(WHITE.mix(0.85))
+            .border_style(rgb(GREY))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()?;
+        Ok(())
+    })?;
     save(&img, out, "residual_vs_velocity.png")?;
     files.push(PlotFile {
         file: "residual_vs_velocity.png".into(),
@@ -333,50 +393,74 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
 
     // 4. Candidate scores (bars) with the threshold (grey line).
     let cands = &p.diagnosis.candidates;
-    let mut img = canvas(640, 300);
     let smax = cands
         .iter()
         .map(|c| c.score)
         .fold(p.diagnosis.threshold * 1.5, f64::max)
         .min(1.0);
-    let frame = Frame {
-        w: 640.0,
-        h: 300.0,
-        x: (0.0, cands.len().max(1) as f64),
-        y: (-smax.min(0.3), smax),
-    };
-    line(
-        &mut img,
-        frame.px(0.0, 0.0),
-        frame.px(cands.len() as f64, 0.0),
-        GREY,
-    );
-    let (tx0, ty) = frame.px(0.0, p.diagnosis.threshold);
-    let (tx1, _) = frame.px(cands.len() as f64, p.diagnosis.threshold);
-    for x in (tx0 as i64..tx1 as i64).step_by(4) {
-        dot_at(&mut img, x as f64, ty, 0, GREY);
-    }
-    for (i, c) in cands.iter().enumerate() {
-        let color = if c.name == p.diagnosis.cause {
-            RED
-        } else {
-            BLUE
-        };
-        let s = c.score.clamp(-smax.min(0.3), smax);
-        let (x0, y0) = frame.px(i as f64 + 0.15, 0.0);
-        let (x1, y1) = frame.px(i as f64 + 0.85, s);
-        for x in x0 as i64..=x1 as i64 {
-            for y in (y0.min(y1) as i64)..=(y0.max(y1) as i64) {
-                dot_at(&mut img, x as f64, y as f64, 0, color);
-            }
-        }
-    }
+    let smin = -smax.min(0.3);
+    let n = cands.len().max(1);
+    let threshold = p.diagnosis.threshold;
+    let img = draw_with_plotters(960, 340, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                "Score per candidate (red: the named cause; dashed: `none` threshold)",
+                (FONT_FAMILY, 15),
+            )
+            .margin(10)
+            .x_label_area_size(50)
+            .y_label_area_size(60)
+            // An integer range's end is a key point of its own: 0..n−1
+            // makes exactly n segments.
+            .build_cartesian_2d((0..n - 1).into_segmented(), smin..smax)?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n)
+            .x_label_formatter(&|v| match v {
+                SegmentValue::CenterOf(i) => {
+                    cands.get(*i).map_or(String::new(), |c| c.name.clone())
+                }
+                _ => String::new(),
+            })
+            .y_desc("score")
+            .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
+            .label_style((FONT_FAMILY, 11))
+            .axis_desc_style((FONT_FAMILY, 13))
+            .draw()?;
+        chart.draw_series(cands.iter().enumerate().map(|(i, c)| {
+            let color = if c.name == p.diagnosis.cause {
+                RED
+            } else {
+                BLUE
+            };
+            let mut bar = Rectangle::new(
+                [
+                    (SegmentValue::Exact(i), 0.0),
+                    (SegmentValue::Exact(i + 1), c.score.clamp(smin, smax)),
+                ],
+                rgb(color).filled(),
+            );
+            bar.set_margin(0, 0, 8, 8);
+            bar
+        }))?;
+        chart.draw_series(DashedLineSeries::new(
+            [
+                (SegmentValue::Exact(0), threshold),
+                (SegmentValue::Last, threshold),
+            ],
+            6,
+            4,
+            rgb(GREY).stroke_width(1),
+        ))?;
+        Ok(())
+    })?;
     save(&img, out, "candidates.png")?;
     files.push(PlotFile {
         file: "candidates.png".into(),
         caption: format!(
             "Held-out score per candidate, in the table's order (bars; red: the named cause; \
-             y: {:.2} to {:.2}); dotted grey: the `none` threshold {:.2}.",
+             y: {:.2} to {:.2}); dashed grey: the `none` threshold {:.2}.",
             -smax.min(0.3),
             smax,
             p.diagnosis.threshold
@@ -389,14 +473,18 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
             &[ChartSeries {
                 values: p.residual_dv,
                 color: BLUE,
+                label: "",
             }],
             &ChartOptions {
                 width: 640,
-                height: 240,
+                height: 260,
                 scale: ValueScale::Linear,
                 markers: vec![p.split.test[0]],
+                title: "The learned residual's mean |Δv| per frame".into(),
+                x_label: "frame".into(),
+                y_label: "|Δv| (m/s)".into(),
             },
-        );
+        )?;
         save(&chart, out, "residual_dv.png")?;
         files.push(PlotFile {
             file: "residual_dv.png".into(),

@@ -34,6 +34,8 @@ pub enum EvalError {
     Lpips(Box<LpipsError>),
     #[error("splats: {0}")]
     Splat(#[from] dm_splat::SplatError),
+    #[error(transparent)]
+    Chart(#[from] dm_view::ViewError),
     #[error("invalid option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }

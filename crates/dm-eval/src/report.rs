@@ -199,12 +199,16 @@ pub fn write_report(
             &[ChartSeries {
                 values: &values,
                 color: [40, 90, 200],
+                label: "",
             }],
             &ChartOptions {
                 markers: vec![test_start],
+                title: format!("{} per frame (dashed: the test split starts)", c.heading),
+                x_label: "frame".into(),
+                y_label: c.heading.into(),
                 ..ChartOptions::default()
             },
-        );
+        )?;
         let path = plots_dir.join(format!("{}.png", c.key));
         write_file_atomic(&path, |temp| {
             chart

@@ -42,6 +42,8 @@ pub enum FitError {
     Bundle(#[from] dm_bundle::BundleError),
     #[error(transparent)]
     Appearance(#[from] dm_appearance::AppearanceError),
+    #[error(transparent)]
+    Chart(#[from] dm_view::ViewError),
     #[error("invalid fit option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }

@@ -390,7 +390,7 @@ pub fn run_fit(
     write_model(&state.model, out)?;
     write_json_atomic(&out.join("fit_report.json"), &report)?;
     let curve: Vec<f64> = state.history.iter().map(|r| r.loss).collect();
-    let png = crate::plot::loss_curve(&curve, options.iters);
+    let png = crate::plot::loss_curve(&curve, options.iters)?;
     write_file_atomic(&out.join("loss_curve.png"), |temp| {
         png.save_with_format(temp, image::ImageFormat::Png)
             .map_err(|e| std::io::Error::other(e.to_string()))

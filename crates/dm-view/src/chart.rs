@@ -1,9 +1,18 @@
-//! Line charts as PNG-ready images, drawn with plain pixels (no font is
-//! bundled, so there are no labels: callers state axes and ranges in the
-//! text that accompanies the picture). Used for dm-fit's loss curve and
-//! dm-eval's per-frame metric plots.
+//! Line charts as PNG-ready images, drawn with plotters and a bundled font
+//! (DejaVu Sans, `assets/`), so every chart carries its title, axis labels
+//! with tick values, and a legend without any system font. Used for
+//! dm-fit's loss curve, dm-eval's per-frame metric plots and dm-diagnose's
+//! error plots.
 
-use image::{Rgb, RgbImage};
+use crate::ViewError;
+use image::RgbImage;
+use plotters::prelude::*;
+use std::sync::OnceLock;
+
+/// The font every chart's text uses, registered with plotters once.
+const FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+/// The family name under which [`register_font`] registers it.
+pub const FONT_FAMILY: &str = "sans-serif";
 
 /// How values map to the vertical axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -18,17 +27,22 @@ pub enum ValueScale {
 pub struct ChartSeries<'a> {
     pub values: &'a [f64],
     pub color: [u8; 3],
+    /// Legend entry (empty: none).
+    pub label: &'a str,
 }
 
-/// Chart size and decorations.
+/// Chart size, text and decorations.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChartOptions {
     pub width: u32,
     pub height: u32,
     pub scale: ValueScale,
-    /// x positions marked by dotted grey vertical lines (e.g. where a
+    /// x positions marked by dashed dark grey vertical lines (e.g. where a
     /// stage or a split starts).
     pub markers: Vec<usize>,
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
 }
 
 impl Default for ChartOptions {
@@ -38,99 +52,212 @@ impl Default for ChartOptions {
             height: 360,
             scale: ValueScale::Linear,
             markers: Vec::new(),
+            title: String::new(),
+            x_label: String::new(),
+            y_label: String::new(),
         }
     }
 }
 
-const MARGIN: i64 = 30;
+/// Registers the bundled font with plotters (once per process); every
+/// plotters drawing in the workspace calls it before drawing text.
+pub fn register_font() -> Result<(), ViewError> {
+    static REGISTERED: OnceLock<bool> = OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, FONT_BYTES).is_ok()
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(ViewError::Chart(
+            "the bundled font DejaVuSans.ttf does not parse".into(),
+        ))
+    }
+}
 
-/// The range drawn on the vertical axis, in scaled units (`None` when no
-/// value can be drawn). A flat series gets a small span around its value.
-fn scaled_range<'a>(series: &[ChartSeries<'a>], scale: ValueScale) -> Option<(f64, f64)> {
+/// The drawable range of every series' values, padded so a flat series
+/// gets a visible span (`None` when nothing can be drawn).
+fn value_range(series: &[ChartSeries<'_>], scale: ValueScale) -> Option<(f64, f64)> {
     let (lo, hi) = series
         .iter()
-        .flat_map(|s| s.values.iter())
-        .filter_map(|&v| scaled(v, scale))
+        .flat_map(|s| s.values.iter().copied())
+        .filter(|&v| drawable(v, scale))
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
             (lo.min(v), hi.max(v))
         });
     if !lo.is_finite() {
         return None;
     }
-    let pad = if hi > lo {
-        0.0
-    } else {
-        0.5 * lo.abs().max(1e-9)
-    };
-    Some((lo - pad, hi + pad))
+    Some(match scale {
+        ValueScale::Linear if hi > lo => {
+            let pad = 0.05 * (hi - lo);
+            (lo - pad, hi + pad)
+        }
+        ValueScale::Linear => {
+            let pad = 0.5 * lo.abs().max(1e-9);
+            (lo - pad, hi + pad)
+        }
+        ValueScale::Log if hi > lo => (lo / 1.2, hi * 1.2),
+        ValueScale::Log => (lo / 2.0, hi * 2.0),
+    })
 }
 
-fn scaled(value: f64, scale: ValueScale) -> Option<f64> {
-    match scale {
-        ValueScale::Linear => value.is_finite().then_some(value),
-        ValueScale::Log => (value.is_finite() && value > 0.0).then(|| value.log10()),
-    }
+fn drawable(value: f64, scale: ValueScale) -> bool {
+    value.is_finite() && (scale == ValueScale::Linear || value > 0.0)
 }
 
-/// Draws the series over a white canvas with left and bottom axes; the
-/// vertical range spans every drawable value of every series.
-pub fn line_chart(series: &[ChartSeries<'_>], options: &ChartOptions) -> RgbImage {
-    let (w, h) = (
-        options.width.max(2 * MARGIN as u32 + 2),
-        options.height.max(2 * MARGIN as u32 + 2),
-    );
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    let put = |img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>| {
-        if x >= 0 && y >= 0 && x < i64::from(w) && y < i64::from(h) {
-            img.put_pixel(x as u32, y as u32, c);
-        }
-    };
-    let (x0, y0, x1, y1) = (MARGIN, MARGIN, i64::from(w) - MARGIN, i64::from(h) - MARGIN);
-    let axis = Rgb([60, 60, 60]);
-    for x in x0..=x1 {
-        put(&mut img, x, y1, axis);
-    }
-    for y in y0..=y1 {
-        put(&mut img, x0, y, axis);
-    }
-    let points = series.iter().map(|s| s.values.len()).max().unwrap_or(0);
-    let Some((lo, hi)) = scaled_range(series, options.scale) else {
-        return img;
-    };
-    if points < 2 {
-        return img;
-    }
-    let span = hi - lo;
-    let last = (points - 1) as f64;
-    let px = |i: usize| x0 + ((x1 - x0) as f64 * i as f64 / last) as i64;
-    let py = |v: f64| y1 - ((y1 - y0) as f64 * (v - lo) / span) as i64;
-    for &marker in &options.markers {
-        if marker > 0 && marker < points {
-            let x = px(marker);
-            for y in (y0..=y1).step_by(3) {
-                put(&mut img, x, y, Rgb([170, 170, 170]));
-            }
+/// Runs of consecutive drawable values as (x, value) points.
+fn segments(values: &[f64], scale: ValueScale) -> Vec<Vec<(f64, f64)>> {
+    let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
+    let mut current = Vec::new();
+    for (i, &v) in values.iter().enumerate() {
+        if drawable(v, scale) {
+            current.push((i as f64, v));
+        } else if !current.is_empty() {
+            runs.push(std::mem::take(&mut current));
         }
     }
-    for s in series {
-        let color = Rgb(s.color);
-        for i in 1..s.values.len() {
-            let (Some(a), Some(b)) = (
-                scaled(s.values[i - 1], options.scale),
-                scaled(s.values[i], options.scale),
-            ) else {
-                continue;
-            };
-            let (xa, ya, xb, yb) = (px(i - 1), py(a), px(i), py(b));
-            let steps = (xb - xa).abs().max((yb - ya).abs()).max(1);
-            for step in 0..=steps {
-                let x = xa + (xb - xa) * step / steps;
-                let y = ya + (yb - ya) * step / steps;
-                for d in -1..=1 {
-                    put(&mut img, x, y + d, color);
+    if !current.is_empty() {
+        runs.push(current);
+    }
+    runs
+}
+
+fn chart_error<E: std::fmt::Display>(e: E) -> ViewError {
+    ViewError::Chart(e.to_string())
+}
+
+/// Draws the series on a white canvas with labelled axes, ticks, the
+/// markers and a legend of the labelled series; the vertical range spans
+/// every drawable value. With nothing drawable (no series, fewer than two
+/// points, all non-finite) the frame and labels are drawn alone.
+pub fn line_chart(
+    series: &[ChartSeries<'_>],
+    options: &ChartOptions,
+) -> Result<RgbImage, ViewError> {
+    register_font()?;
+    let (w, h) = (options.width.max(160), options.height.max(120));
+    let mut buffer = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(chart_error)?;
+        let points = series.iter().map(|s| s.values.len()).max().unwrap_or(0);
+        let x_max = points.saturating_sub(1).max(1) as f64;
+        let range = value_range(series, options.scale).filter(|_| points >= 2);
+        let (lo, hi) = range.unwrap_or(match options.scale {
+            ValueScale::Linear => (0.0, 1.0),
+            ValueScale::Log => (0.1, 10.0),
+        });
+        let mut builder = ChartBuilder::on(&root);
+        builder
+            .margin(12)
+            .x_label_area_size(if options.x_label.is_empty() { 24 } else { 40 })
+            .y_label_area_size(if options.y_label.is_empty() { 52 } else { 70 });
+        if !options.title.is_empty() {
+            builder.caption(&options.title, (FONT_FAMILY, 17));
+        }
+        let style = (FONT_FAMILY, 13);
+        // Darker and wider than the mesh, which often has a line at the
+        // same x (a split starting at frame 25).
+        let marker_color = RGBColor(70, 70, 70);
+        // Log and linear axes are different coordinate types, so each
+        // builds and draws its own chart with the shared helper.
+        macro_rules! draw_chart {
+            ($chart:expr) => {{
+                let mut chart = $chart;
+                chart
+                    .configure_mesh()
+                    .light_line_style(RGBColor(238, 238, 238))
+                    .x_desc(options.x_label.as_str())
+                    .y_desc(options.y_label.as_str())
+                    .label_style(style)
+                    .axis_desc_style(style)
+                    .y_label_formatter(&|v| format_tick(*v))
+                    .draw()
+                    .map_err(chart_error)?;
+                for &m in &options.markers {
+                    if m > 0 && m < points {
+                        chart
+                            .draw_series(DashedLineSeries::new(
+                                [(m as f64, lo), (m as f64, hi)],
+                                8,
+                                5,
+                                marker_color.stroke_width(2),
+                            ))
+                            .map_err(chart_error)?;
+                    }
                 }
-            }
+                if range.is_some() {
+                    let mut any_label = false;
+                    for s in series {
+                        let color = RGBColor(s.color[0], s.color[1], s.color[2]);
+                        for (k, run) in segments(s.values, options.scale).into_iter().enumerate() {
+                            let drawn = if run.len() == 1 {
+                                chart.draw_series(std::iter::once(Circle::new(
+                                    run[0],
+                                    2,
+                                    color.filled(),
+                                )))
+                            } else {
+                                chart.draw_series(LineSeries::new(run, color.stroke_width(2)))
+                            }
+                            .map_err(chart_error)?;
+                            if k == 0 && !s.label.is_empty() {
+                                any_label = true;
+                                drawn.label(s.label).legend(move |(x, y)| {
+                                    PathElement::new(
+                                        vec![(x, y), (x + 18, y)],
+                                        color.stroke_width(2),
+                                    )
+                                });
+                            }
+                        }
+                    }
+                    if any_label {
+                        chart
+                            .configure_series_labels()
+                            .label_font(style)
+                            .background_style(WHITE.mix(0.85))
+                            .border_style(RGBColor(180, 180, 180))
+                            // Errors grow with time in most of our charts.
+                            .position(SeriesLabelPosition::UpperLeft)
+                            .draw()
+                            .map_err(chart_error)?;
+                    }
+                }
+            }};
+        }
+        match options.scale {
+            ValueScale::Linear => draw_chart!(
+                builder
+                    .build_cartesian_2d(0.0..x_max, lo..hi)
+                    .map_err(chart_error)?
+            ),
+            ValueScale::Log => draw_chart!(
+                builder
+                    .build_cartesian_2d(0.0..x_max, (lo..hi).log_scale())
+                    .map_err(chart_error)?
+            ),
+        }
+        root.present().map_err(chart_error)?;
+    }
+    RgbImage::from_raw(w, h, buffer)
+        .ok_or_else(|| ViewError::Chart("chart buffer has the wrong size".into()))
+}
+
+/// A tick value in at most 4 decimals (scientific outside 1e-3..1e4),
+/// never "-0".
+pub fn format_tick(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && !(1e-3..1e4).contains(&a) {
+        format!("{v:.1e}")
+    } else {
+        let text = format!("{v:.4}");
+        let text = text.trim_end_matches('0').trim_end_matches('.');
+        if text == "-0" {
+            "0".into()
+        } else {
+            text.into()
         }
     }
-    img
 }

@@ -1,6 +1,7 @@
 use thiserror::Error;
 
-/// Errors from building cameras out of external (file / user) data.
+/// Errors from building cameras out of external (file / user) data, and
+/// from drawing charts.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum ViewError {
     #[error("invalid intrinsics: {0}")]
@@ -13,4 +14,6 @@ pub enum ViewError {
     NonOrthonormalRotation { max_error: f64 },
     #[error("rotation block has determinant {determinant} (reflection, not a rotation)")]
     NotProperRotation { determinant: f64 },
+    #[error("drawing a chart: {0}")]
+    Chart(String),
 }

@@ -1,5 +1,6 @@
-//! The pixel line chart: lines where values are finite, gaps where not,
-//! and no panic on empty, flat or non-positive (log scale) input.
+//! The line chart: lines where values are finite, gaps where not, no
+//! panic on empty, flat or non-positive (log scale) input, and the bundled
+//! font draws its text.
 
 use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
 
@@ -7,12 +8,17 @@ const RED: [u8; 3] = [200, 40, 40];
 
 fn coloured_columns(values: &[f64], scale: ValueScale) -> Vec<u32> {
     let chart = line_chart(
-        &[ChartSeries { values, color: RED }],
+        &[ChartSeries {
+            values,
+            color: RED,
+            label: "",
+        }],
         &ChartOptions {
             scale,
             ..ChartOptions::default()
         },
-    );
+    )
+    .expect("chart");
     let mut columns: Vec<u32> = chart
         .enumerate_pixels()
         .filter(|(_, _, p)| p.0 == RED)
@@ -47,4 +53,54 @@ fn degenerate_inputs_draw_axes_only_or_a_flat_line() {
     assert!(coloured_columns(&[f64::NAN; 4], ValueScale::Linear).is_empty());
     assert!(coloured_columns(&[0.5], ValueScale::Linear).is_empty());
     assert!(!coloured_columns(&[0.5, 0.5, 0.5], ValueScale::Linear).is_empty());
+}
+
+/// Dark pixels inside `rows` (text and axes are drawn in black/grey).
+fn dark_pixels(chart: &image::RgbImage, rows: std::ops::Range<u32>) -> usize {
+    chart
+        .enumerate_pixels()
+        .filter(|(_, y, p)| rows.contains(y) && p.0.iter().all(|&c| c < 100))
+        .count()
+}
+
+#[test]
+fn title_and_legend_are_drawn_with_the_bundled_font() {
+    let values = [1.0, 2.0, 3.0];
+    let series = [ChartSeries {
+        values: &values,
+        color: RED,
+        label: "fitted model",
+    }];
+    let plain = line_chart(&series, &ChartOptions::default()).expect("chart");
+    let titled = line_chart(
+        &series,
+        &ChartOptions {
+            title: "Track error per frame".into(),
+            x_label: "frame".into(),
+            y_label: "track error (mm)".into(),
+            ..ChartOptions::default()
+        },
+    )
+    .expect("chart");
+    // The title lives in the top 30 rows; without one they stay blank
+    // but for the legend's text further down.
+    assert!(
+        dark_pixels(&titled, 0..30) > 100 + dark_pixels(&plain, 0..30),
+        "title text drawn: {} vs {} dark pixels",
+        dark_pixels(&titled, 0..30),
+        dark_pixels(&plain, 0..30)
+    );
+    let unlabelled = line_chart(
+        &[ChartSeries {
+            values: &values,
+            color: RED,
+            label: "",
+        }],
+        &ChartOptions::default(),
+    )
+    .expect("chart");
+    assert!(
+        dark_pixels(&plain, 0..360) > dark_pixels(&unlabelled, 0..360) + 50,
+        "the legend's text is drawn"
+    );
 }

@@ -75,44 +75,43 @@ pub fn register_font() -> Result<(), ViewError> {
     }
 }
 
-/// The drawable range of every series' values, padded so a flat series
-/// gets a visible span (`None` when nothing can be drawn).
-fn value_range(series: &[ChartSeries<'_>], scale: ValueScale) -> Option<(f64, f64)> {
+/// A value as drawn on the vertical axis: itself, or its log10 (`None`
+/// where it cannot be drawn: non-finite, or ≤ 0 on a log scale).
+fn scaled(value: f64, scale: ValueScale) -> Option<f64> {
+    match scale {
+        ValueScale::Linear => value.is_finite().then_some(value),
+        ValueScale::Log => (value.is_finite() && value > 0.0).then(|| value.log10()),
+    }
+}
+
+/// The drawn range of every series' scaled values, padded so a flat
+/// series gets a visible span (`None` when nothing can be drawn).
+fn scaled_range(series: &[ChartSeries<'_>], scale: ValueScale) -> Option<(f64, f64)> {
     let (lo, hi) = series
         .iter()
-        .flat_map(|s| s.values.iter().copied())
-        .filter(|&v| drawable(v, scale))
+        .flat_map(|s| s.values.iter())
+        .filter_map(|&v| scaled(v, scale))
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
             (lo.min(v), hi.max(v))
         });
     if !lo.is_finite() {
         return None;
     }
-    Some(match scale {
-        ValueScale::Linear if hi > lo => {
-            let pad = 0.05 * (hi - lo);
-            (lo - pad, hi + pad)
-        }
-        ValueScale::Linear => {
-            let pad = 0.5 * lo.abs().max(1e-9);
-            (lo - pad, hi + pad)
-        }
-        ValueScale::Log if hi > lo => (lo / 1.2, hi * 1.2),
-        ValueScale::Log => (lo / 2.0, hi * 2.0),
-    })
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        0.5 * lo.abs().max(1e-9)
+    };
+    Some((lo - pad, hi + pad))
 }
 
-fn drawable(value: f64, scale: ValueScale) -> bool {
-    value.is_finite() && (scale == ValueScale::Linear || value > 0.0)
-}
-
-/// Runs of consecutive drawable values as (x, value) points.
+/// Runs of consecutive drawable values as (x, scaled value) points.
 fn segments(values: &[f64], scale: ValueScale) -> Vec<Vec<(f64, f64)>> {
     let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
     let mut current = Vec::new();
     for (i, &v) in values.iter().enumerate() {
-        if drawable(v, scale) {
-            current.push((i as f64, v));
+        if let Some(y) = scaled(v, scale) {
+            current.push((i as f64, y));
         } else if !current.is_empty() {
             runs.push(std::mem::take(&mut current));
         }
@@ -129,8 +128,11 @@ fn chart_error<E: std::fmt::Display>(e: E) -> ViewError {
 
 /// Draws the series on a white canvas with labelled axes, ticks, the
 /// markers and a legend of the labelled series; the vertical range spans
-/// every drawable value. With nothing drawable (no series, fewer than two
-/// points, all non-finite) the frame and labels are drawn alone.
+/// every drawable value. A log scale draws log10 of the values on a linear
+/// axis whose ticks read as the values themselves (plotters' own log axis
+/// labels only powers of ten, so a loss falling within one decade had no
+/// tick). With nothing drawable (no series, fewer than two points, all
+/// non-finite) the frame and labels are drawn alone.
 pub fn line_chart(
     series: &[ChartSeries<'_>],
     options: &ChartOptions,
@@ -143,11 +145,8 @@ pub fn line_chart(
         root.fill(&WHITE).map_err(chart_error)?;
         let points = series.iter().map(|s| s.values.len()).max().unwrap_or(0);
         let x_max = points.saturating_sub(1).max(1) as f64;
-        let range = value_range(series, options.scale).filter(|_| points >= 2);
-        let (lo, hi) = range.unwrap_or(match options.scale {
-            ValueScale::Linear => (0.0, 1.0),
-            ValueScale::Log => (0.1, 10.0),
-        });
+        let range = scaled_range(series, options.scale).filter(|_| points >= 2);
+        let (lo, hi) = range.unwrap_or((0.0, 1.0));
         let mut builder = ChartBuilder::on(&root);
         builder
             .margin(12)
@@ -156,88 +155,78 @@ pub fn line_chart(
         if !options.title.is_empty() {
             builder.caption(&options.title, (FONT_FAMILY, 17));
         }
+        let mut chart = builder
+            .build_cartesian_2d(0.0..x_max, lo..hi)
+            .map_err(chart_error)?;
         let style = (FONT_FAMILY, 13);
+        let scale = options.scale;
+        chart
+            .configure_mesh()
+            .light_line_style(RGBColor(238, 238, 238))
+            .x_desc(options.x_label.as_str())
+            .y_desc(options.y_label.as_str())
+            .label_style(style)
+            .axis_desc_style(style)
+            .x_labels(points.clamp(2, 11))
+            // x is an index (frame, iteration): whole numbers only.
+            .x_label_formatter(&|v| {
+                if v.fract() == 0.0 {
+                    format!("{v:.0}")
+                } else {
+                    String::new()
+                }
+            })
+            .y_label_formatter(&|v| match scale {
+                ValueScale::Linear => format_tick(*v),
+                ValueScale::Log => format_tick(10f64.powf(*v)),
+            })
+            .draw()
+            .map_err(chart_error)?;
         // Darker and wider than the mesh, which often has a line at the
         // same x (a split starting at frame 25).
         let marker_color = RGBColor(70, 70, 70);
-        // Log and linear axes are different coordinate types, so each
-        // builds and draws its own chart with the shared helper.
-        macro_rules! draw_chart {
-            ($chart:expr) => {{
-                let mut chart = $chart;
+        for &m in &options.markers {
+            if m > 0 && m < points {
                 chart
-                    .configure_mesh()
-                    .light_line_style(RGBColor(238, 238, 238))
-                    .x_desc(options.x_label.as_str())
-                    .y_desc(options.y_label.as_str())
-                    .label_style(style)
-                    .axis_desc_style(style)
-                    .y_label_formatter(&|v| format_tick(*v))
+                    .draw_series(DashedLineSeries::new(
+                        [(m as f64, lo), (m as f64, hi)],
+                        8,
+                        5,
+                        marker_color.stroke_width(2),
+                    ))
+                    .map_err(chart_error)?;
+            }
+        }
+        if range.is_some() {
+            let mut any_label = false;
+            for s in series {
+                let color = RGBColor(s.color[0], s.color[1], s.color[2]);
+                for (k, run) in segments(s.values, scale).into_iter().enumerate() {
+                    let drawn = if run.len() == 1 {
+                        chart.draw_series(std::iter::once(Circle::new(run[0], 2, color.filled())))
+                    } else {
+                        chart.draw_series(LineSeries::new(run, color.stroke_width(2)))
+                    }
+                    .map_err(chart_error)?;
+                    if k == 0 && !s.label.is_empty() {
+                        any_label = true;
+                        drawn.label(s.label).legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+                        });
+                    }
+                }
+            }
+            if any_label {
+                chart
+                    .configure_series_labels()
+                    .label_font(style)
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(RGBColor(180, 180, 180))
+                    // Errors grow with time in most of our charts.
+                    .position(SeriesLabelPosition::UpperLeft)
                     .draw()
                     .map_err(chart_error)?;
-                for &m in &options.markers {
-                    if m > 0 && m < points {
-                        chart
-                            .draw_series(DashedLineSeries::new(
-                                [(m as f64, lo), (m as f64, hi)],
-                                8,
-                                5,
-                                marker_color.stroke_width(2),
-                            ))
-                            .map_err(chart_error)?;
-                    }
-                }
-                if range.is_some() {
-                    let mut any_label = false;
-                    for s in series {
-                        let color = RGBColor(s.color[0], s.color[1], s.color[2]);
-                        for (k, run) in segments(s.values, options.scale).into_iter().enumerate() {
-                            let drawn = if run.len() == 1 {
-                                chart.draw_series(std::iter::once(Circle::new(
-                                    run[0],
-                                    2,
-                                    color.filled(),
-                                )))
-                            } else {
-                                chart.draw_series(LineSeries::new(run, color.stroke_width(2)))
-                            }
-                            .map_err(chart_error)?;
-                            if k == 0 && !s.label.is_empty() {
-                                any_label = true;
-                                drawn.label(s.label).legend(move |(x, y)| {
-                                    PathElement::new(
-                                        vec![(x, y), (x + 18, y)],
-                                        color.stroke_width(2),
-                                    )
-                                });
-                            }
-                        }
-                    }
-                    if any_label {
-                        chart
-                            .configure_series_labels()
-                            .label_font(style)
-                            .background_style(WHITE.mix(0.85))
-                            .border_style(RGBColor(180, 180, 180))
-                            // Errors grow with time in most of our charts.
-                            .position(SeriesLabelPosition::UpperLeft)
-                            .draw()
-                            .map_err(chart_error)?;
-                    }
-                }
-            }};
-        }
-        match options.scale {
-            ValueScale::Linear => draw_chart!(
-                builder
-                    .build_cartesian_2d(0.0..x_max, lo..hi)
-                    .map_err(chart_error)?
-            ),
-            ValueScale::Log => draw_chart!(
-                builder
-                    .build_cartesian_2d(0.0..x_max, (lo..hi).log_scale())
-                    .map_err(chart_error)?
-            ),
+            }
         }
         root.present().map_err(chart_error)?;
     }
@@ -245,12 +234,13 @@ pub fn line_chart(
         .ok_or_else(|| ViewError::Chart("chart buffer has the wrong size".into()))
 }
 
-/// A tick value in at most 4 decimals (scientific outside 1e-3..1e4),
+/// A tick value in at most 4 decimals (3 significant digits in
+/// scientific notation outside 1e-3..1e4, so close log ticks differ),
 /// never "-0".
 pub fn format_tick(v: f64) -> String {
     let a = v.abs();
     if a != 0.0 && !(1e-3..1e4).contains(&a) {
-        format!("{v:.1e}")
+        format!("{v:.2e}")
     } else {
         let text = format!("{v:.4}");
         let text = text.trim_end_matches('0').trim_end_matches('.');

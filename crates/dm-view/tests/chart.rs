@@ -104,3 +104,16 @@ fn title_and_legend_are_drawn_with_the_bundled_font() {
         "the legend's text is drawn"
     );
 }
+
+#[test]
+fn tick_labels_are_short_and_distinct() {
+    use dm_view::chart::format_tick;
+    assert_eq!(format_tick(-0.0), "0");
+    assert_eq!(format_tick(-1e-12 * 0.0), "0");
+    assert_eq!(format_tick(0.25), "0.25");
+    assert_eq!(format_tick(20.0), "20");
+    assert_eq!(format_tick(-0.1), "-0.1");
+    // Neighbouring ticks of a log axis within one decade stay distinct.
+    assert_ne!(format_tick(4.57e-4), format_tick(4.62e-4));
+    assert_eq!(format_tick(4.62e-4), "4.62e-4");
+}

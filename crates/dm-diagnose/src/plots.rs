@@ -459,7 +459,7 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
     files.push(PlotFile {
         file: "candidates.png".into(),
         caption: format!(
-            "Held-out score per candidate, in the table's order (bars; red: the named cause; \
+            "Score per candidate, named under its bar, in the table's order (red: the named cause; \
              y: {:.2} to {:.2}); dashed grey: the `none` threshold {:.2}.",
             -smax.min(0.3),
             smax,

@@ -138,6 +138,54 @@ fn draw_with_plotters(
         .ok_or_else(|| ViewError::Chart("chart buffer has the wrong size".into()))
 }
 
+type PanelChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    plotters::coord::cartesian::Cartesian2d<
+        plotters::coord::types::RangedCoordf64,
+        plotters::coord::types::RangedCoordf64,
+    >,
+>;
+
+/// A scatter panel: `[title, x label, y label]`, the ranges, the points
+/// as small blue dots.
+fn scatter_panel<'a, 'b>(
+    area: &'a DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    [title, x_desc, y_desc]: [&str; 3],
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    points: impl Iterator<Item = (f64, f64)>,
+) -> Result<PanelChart<'a, 'b>, Box<dyn std::error::Error>> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, (FONT_FAMILY, 16))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x, y)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
+        .label_style((FONT_FAMILY, 12))
+        .axis_desc_style((FONT_FAMILY, 13))
+        .draw()?;
+    chart.draw_series(points.map(|p| Circle::new(p, 1, rgb(BLUE).filled())))?;
+    Ok(chart)
+}
+
+/// The legend of a panel's labelled series, top right.
+fn draw_legend<'a, 'b: 'a>(chart: &mut PanelChart<'a, 'b>) -> PlotResult {
+    chart
+        .configure_series_labels()
+        .label_font((FONT_FAMILY, 12))
+        .background_style(WHITE.mix(0.85))
+        .border_style(rgb(GREY))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()?;
+    Ok(())
+}
+
 fn canvas(w: u32, h: u32) -> RgbImage {
     RgbImage::from_pixel(w, h, Rgb([255, 255, 255]))
 }
@@ -302,26 +350,24 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
     let mean = p.diagnosis.signatures.horizontal_accel;
     let img = draw_with_plotters(900, 420, |root| {
         let (left, right) = root.split_horizontally(450);
-        let mut chart = ChartBuilder::on(&left)
-            .caption("Residual along the velocity", (FONT_FAMILY, 16))
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..vmax, -amax..amax)?;
-        chart
-            .configure_mesh()
-            .x_desc("speed (m/s)")
-            .y_desc("residual · v̂ (m/s²)")
-            .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
-            .label_style((FONT_FAMILY, 12))
-            .axis_desc_style((FONT_FAMILY, 13))
-            .draw()?;
-        chart.draw_series(
+        let in_range = |x: f64, y: f64, xr: &std::ops::Range<f64>, yr: &std::ops::Range<f64>| {
+            (xr.start..=xr.end).contains(&x) && (yr.start..=yr.end).contains(&y)
+        };
+        let (xr, yr) = (0.0..vmax, -amax..amax);
+        let mut chart = scatter_panel(
+            &left,
+            [
+                "Residual along the velocity",
+                "speed (m/s)",
+                "residual · v̂ (m/s²)",
+            ],
+            xr.clone(),
+            yr.clone(),
             speeds
                 .iter()
                 .zip(&along_v)
-                .filter(|(v, a)| **v <= vmax && a.abs() <= amax)
-                .map(|(v, a)| Circle::new((*v, *a), 1, rgb(BLUE).filled())),
+                .map(|(v, a)| (*v, *a))
+                .filter(|(v, a)| in_range(*v, *a, &xr, &yr)),
         )?;
         chart
             .draw_series(LineSeries::new(
@@ -330,32 +376,17 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
             ))?
             .label(format!("fit r = −k v, k = {k:.2} /s"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], rgb(RED).stroke_width(2)));
-        chart
-            .configure_series_labels()
-            .label_font((FONT_FAMILY, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(rgb(GREY))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()?;
-        let mut chart = ChartBuilder::on(&right)
-            .caption("Horizontal residual", (FONT_FAMILY, 16))
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(-hmax..hmax, -hmax..hmax)?;
-        chart
-            .configure_mesh()
-            .x_desc("east (m/s²)")
-            .y_desc("north (m/s²)")
-            .y_label_formatter(&|v| dm_view::chart::format_tick(*v))
-            .label_style((FONT_FAMILY, 12))
-            .axis_desc_style((FONT_FAMILY, 13))
-            .draw()?;
-        chart.draw_series(
+        draw_legend(&mut chart)?;
+        let (xr, yr) = (-hmax..hmax, -hmax..hmax);
+        let mut chart = scatter_panel(
+            &right,
+            ["Horizontal residual", "east (m/s²)", "north (m/s²)"],
+            xr.clone(),
+            yr.clone(),
             hx.iter()
                 .zip(&hy)
-                .filter(|(x, y)| x.abs() <= hmax && y.abs() <= hmax)
-                .map(|(x, y)| Circle::new((*x, *y), 1, rgb(BLUE).filled())),
+                .map(|(x, y)| (*x, *y))
+                .filter(|(x, y)| in_range(*x, *y, &xr, &yr)),
         )?;
         chart
             .draw_series(std::iter::once(Circle::new(
@@ -365,13 +396,7 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
             )))?
             .label("mean (a tilted gravity moves it off 0)")
             .legend(|(x, y)| Circle::new((x + 9, y), 4, rgb(RED).filled()));
-        chart
-            .configure_series_labels()
-            .label_font((FONT_FAMILY, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(rgb(GREY))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()?;
+        draw_legend(&mut chart)?;
         Ok(())
     })?;
     save(&img, out, "residual_vs_velocity.png")?;

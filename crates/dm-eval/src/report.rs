@@ -139,7 +139,7 @@ pub fn markdown(metrics: &Metrics, run: &RunInfo) -> String {
     }
     let _ = writeln!(
         md,
-        "\nPer frame (x: frame 0 to {}; dotted line: first test frame; y: from min to max):\n",
+        "\nPer frame (x: frame 0 to {}; dashed line: first test frame; y: from min to max, labelled on each plot):\n",
         run.frames.saturating_sub(1)
     );
     let _ = writeln!(md, "| metric | plot | min | max |\n|---|---|---:|---:|");

@@ -96,7 +96,8 @@ impl Default for MaterialFitConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IterationReport {
     pub iteration: usize,
-    /// Mean loss L_dyn over the frames (m²), before the step.
+    /// Mean loss L_dyn over the frames (m²), before the step; in stage 3
+    /// it includes the weighted photometric term (see `rgb_l1`).
     pub loss: f64,
     pub youngs_median_pa: f64,
     pub poisson_median: f64,

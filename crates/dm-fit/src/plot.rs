@@ -5,9 +5,11 @@ use dm_view::ViewError;
 use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
 use image::RgbImage;
 
-/// Plots `losses` (one per iteration); a grey line marks where stage 2
-/// starts (after `stage1_iterations`).
-pub fn loss_curve(losses: &[f64], stage1_iterations: usize) -> Result<RgbImage, ViewError> {
+/// Plots `losses` (one per iteration); dashed lines mark where each later
+/// stage starts (`stage_starts`, iteration indices). The residual stage
+/// and stage 3 change the objective (network regulariser, + L_rgb), so a
+/// step up at their start is not a divergence.
+pub fn loss_curve(losses: &[f64], stage_starts: &[usize]) -> Result<RgbImage, ViewError> {
     line_chart(
         &[ChartSeries {
             values: losses,
@@ -16,8 +18,8 @@ pub fn loss_curve(losses: &[f64], stage1_iterations: usize) -> Result<RgbImage, 
         }],
         &ChartOptions {
             scale: ValueScale::Log,
-            markers: vec![stage1_iterations],
-            title: "Training loss L_dyn (dashed: stage 2 starts)".into(),
+            markers: stage_starts.to_vec(),
+            title: "Training loss (dashed: next stage; stage 3 adds L_rgb)".into(),
             x_label: "iteration".into(),
             y_label: "loss (m²)".into(),
             ..ChartOptions::default()

@@ -390,7 +390,12 @@ pub fn run_fit(
     write_model(&state.model, out)?;
     write_json_atomic(&out.join("fit_report.json"), &report)?;
     let curve: Vec<f64> = state.history.iter().map(|r| r.loss).collect();
-    let png = crate::plot::loss_curve(&curve, options.iters)?;
+    // Where stage 2, the residual stage and stage 3 start in the history.
+    let mut stage_starts = vec![options.iters, options.iters + options.stage2_iters];
+    if options.residual_iters > 0 && state.model.residual.is_some() {
+        stage_starts.push(options.iters + options.stage2_iters + options.residual_iters);
+    }
+    let png = crate::plot::loss_curve(&curve, &stage_starts)?;
     write_file_atomic(&out.join("loss_curve.png"), |temp| {
         png.save_with_format(temp, image::ImageFormat::Png)
             .map_err(|e| std::io::Error::other(e.to_string()))

@@ -102,9 +102,7 @@ impl EffectName {
             EffectName::DensityVariation => [2.0, 4.0],
         }
     }
-}
 
-impl EffectName {
     /// The action a diagnosis test films this effect with, where the
     /// seed's own action would barely excite it: Coulomb friction acts only
     /// while the object slides on the floor (at μ = 0.6 a lifted toy moves

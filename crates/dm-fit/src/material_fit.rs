@@ -106,6 +106,10 @@ pub struct IterationReport {
     /// frames and cameras (per pixel and channel), before the step.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rgb_l1: Option<f64>,
+    /// L_dyn over the last 30 % of the fitted frames, before the step
+    /// ([`late_frames_loss`]); absent in reports written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub late_loss: Option<f64>,
 }
 
 /// What stays fixed over a fit: frame-0 track matches and length pairs.
@@ -171,6 +175,27 @@ pub struct LossGradients {
     pub patches: PatchParams,
     /// Residual network weights (when the model has a residual).
     pub residual: Option<Vec<f64>>,
+    /// L_dyn of each predicted frame 1, 2, … (before the step; without the
+    /// regulariser and the extra term), for [`late_frames_loss`].
+    pub frame_losses: Vec<f64>,
+}
+
+/// Share of the fitted frames, at their end, that [`late_frames_loss`]
+/// averages: the same share as the held-out split that follows them.
+pub const LATE_FRAMES_SHARE: f64 = 0.3;
+
+/// Mean of the last [`LATE_FRAMES_SHARE`] of `frame_losses` (at least one
+/// frame): how well an open-loop rollout holds up where it has drifted
+/// longest, the nearest thing inside the training frames to the held-out
+/// frames after them.
+pub fn late_frames_loss(frame_losses: &[f64]) -> f64 {
+    if frame_losses.is_empty() {
+        return f64::INFINITY;
+    }
+    let count = ((frame_losses.len() as f64 * LATE_FRAMES_SHARE).round() as usize)
+        .clamp(1, frame_losses.len());
+    let late = &frame_losses[frame_losses.len() - count..];
+    late.iter().sum::<f64>() / count as f64
 }
 
 /// The train-split loss L_dyn (+ the residual's regulariser) of `model`
@@ -203,6 +228,7 @@ pub fn loss_and_gradient(
     let mut starts: Vec<FrameStart> = Vec::with_capacity(steps);
     let mut corrections = Vec::with_capacity(steps);
     let mut frame_grads: Vec<Vec<[f64; 3]>> = Vec::with_capacity(steps);
+    let mut frame_losses = Vec::with_capacity(steps);
     let mut loss = 0.0;
     for t in 0..steps {
         checkpoints.push(world.state());
@@ -219,6 +245,7 @@ pub fn loss_and_gradient(
         let positions = world.positions();
         let value = fixed.frame(bundle, t + 1, &positions)?;
         loss += value.value / steps as f64;
+        frame_losses.push(value.value);
         let mut grad: Vec<[f64; 3]> = value
             .grad
             .iter()
@@ -298,6 +325,7 @@ pub fn loss_and_gradient(
         LossGradients {
             patches: grads,
             residual: grad_residual,
+            frame_losses,
         },
     ))
 }
@@ -342,13 +370,14 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let (loss, grads) = loss_and_gradient(
+    let (loss, mut grads) = loss_and_gradient(
         model,
         bundle,
         fit_frames(bundle, config),
         config.window,
         extra,
     )?;
+    let grads_frame_losses = std::mem::take(&mut grads.frame_losses);
     let mut all_grads = to_param_set(&grads.patches)?;
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
@@ -387,6 +416,7 @@ pub fn material_step(
         poisson_median: poisson,
         seconds: start.elapsed().as_secs_f64(),
         rgb_l1: None,
+        late_loss: Some(late_frames_loss(&grads_frame_losses)),
     })
 }
 
@@ -410,22 +440,34 @@ pub fn fit_material(
 /// Forward-only mean loss L_dyn over the first `frames` frames (for the
 /// gain search); a diverging rollout scores infinity.
 pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<f64, FitError> {
+    let losses = train_frame_losses(model, bundle, frames)?;
+    Ok(losses.iter().sum::<f64>() / losses.len().max(1) as f64)
+}
+
+/// Forward-only L_dyn of each predicted frame 1, 2, … up to `frames`; a
+/// diverging rollout scores infinity on every frame.
+pub fn train_frame_losses(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+) -> Result<Vec<f64>, FitError> {
     let frames = frames.min(bundle.frame_count());
+    let steps = frames.saturating_sub(1);
     let fixed = FixedTerms::new(model, bundle)?;
     let mut world = model.world()?;
     let network = model.residual_network()?;
     let mut starts: Vec<FrameStart> = Vec::new();
-    let mut loss = 0.0;
-    for t in 0..frames.saturating_sub(1) {
+    let mut losses = Vec::with_capacity(steps);
+    for t in 0..steps {
         starts.push(frame_start(&world));
         let (from, to, grasp) = model.hand_step(bundle, t);
         if world.step_frame(&from, &to, &grasp).is_err() {
-            return Ok(f64::INFINITY);
+            return Ok(vec![f64::INFINITY; steps]);
         }
         if let Some(network) = &network {
             apply_residual(&mut world, network, &starts, t)?;
         }
-        loss += fixed.frame(bundle, t + 1, &world.positions())?.value;
+        losses.push(fixed.frame(bundle, t + 1, &world.positions())?.value);
     }
-    Ok(loss / (frames.saturating_sub(1)).max(1) as f64)
+    Ok(losses)
 }

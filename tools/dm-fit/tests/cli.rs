@@ -149,7 +149,16 @@ fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
     let with = dir.path().join("with");
     // No stage 3: it would move the material again.
     let physics_then_residual = |out: &Path, residual_iters: &str| {
-        let stages = ["--rgb-iters", "0", "--residual", "pgnd", "--residual-iters"];
+        // `last`: the stage's best late-frames network may be its start.
+        let stages = [
+            "--rgb-iters",
+            "0",
+            "--residual",
+            "pgnd",
+            "--residual-keep",
+            "last",
+            "--residual-iters",
+        ];
         fit_with(
             &scene,
             out,

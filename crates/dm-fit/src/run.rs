@@ -35,10 +35,12 @@ pub struct FitOptions {
     pub residual_lr: f64,
     /// Gradient steps on the residual network alone after stage 2, with the
     /// material and gains frozen (0 skips; only with --residual pgnd|mlp).
-    /// Joint steps alone leave most of a hidden effect's error in place;
-    /// these cut held-out Track error 14–22 % more (docs/RESULTS.md, issue 4).
-    /// Run records written before the option existed read as 0.
-    #[arg(long, default_value_t = 12)]
+    /// Joint steps alone leave most of a hidden effect's error in place; 36
+    /// of these, with `--residual-keep late-frames`, cut held-out Track
+    /// error 15 % (air drag) and 37 % (plasticity) below `--residual none`
+    /// (docs/RESULTS.md, issue 4). Run records written before the option
+    /// existed read as 0.
+    #[arg(long, default_value_t = 36)]
     #[serde(default)]
     pub residual_iters: usize,
     /// Which network the residual-only stage keeps. Run records written

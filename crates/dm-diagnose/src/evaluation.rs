@@ -25,6 +25,8 @@ pub fn quick_fit_options() -> FitOptions {
         lr: 0.1,
         residual_lr: 5e-3,
         residual_iters: 0,
+        // No residual-only stage; `last` is what records before the option read as.
+        residual_keep: dm_fit::run::ResidualKeep::Last,
         window: 20,
         gain_evals: 4,
         seed: 0,

@@ -326,8 +326,7 @@ pub fn diagnose(
         }
         let (trial, mut scored) = best_trial;
         let mut extended_model = trial.model.clone();
-        let (record, refitted) =
-            refit_material(&extended_model, &bundle, trial.candidate, options, progress)?;
+        let (record, refitted) = refit_material(&extended_model, &bundle, options, progress)?;
         if let Some(refitted) = refitted {
             let s = score_trial(&refitted, &bundle);
             if s.track_train < scored.track_train {
@@ -448,12 +447,12 @@ fn near_hand_tracks(bundle: &Bundle) -> Vec<usize> {
     d.iter().take((d.len() / 3).max(1)).map(|x| x.1).collect()
 }
 
-/// A few material Adam steps with the effect in place. Floor friction has
-/// no adjoint in dm-mpm yet, so its refit is the effect parameter only.
+/// A few material Adam steps with the effect in place (every effect's
+/// state adjoint exists in dm-mpm; floor friction's since the seventh
+/// session).
 fn refit_material(
     model: &WorldModel,
     bundle: &Bundle,
-    candidate: Candidate,
     options: &DiagnoseOptions,
     progress: Progress<'_>,
 ) -> Result<(RefitRecord, Option<WorldModel>), DiagnoseError> {
@@ -469,12 +468,6 @@ fn refit_material(
     };
     if options.refit_iters == 0 {
         return Ok((blank("material refit disabled (--refit-iters 0)"), None));
-    }
-    if candidate == Candidate::FloorFriction {
-        return Ok((
-            blank("floor friction has no adjoint yet: effect parameter refitted, material kept"),
-            None,
-        ));
     }
     let mut refitted = model.clone();
     let config = MaterialFitConfig {

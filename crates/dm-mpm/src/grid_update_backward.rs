@@ -5,8 +5,14 @@
 //! inward normal component — linear projections Π whose active set is
 //! taken from the forward values. Backward: ū_pre = Π ū (Π symmetric),
 //! P̄ = γ ū_pre / m, m̄ = −γ ū_pre · P / m². Empty nodes pass nothing back.
-//! Floor friction is not differentiated (the model has none; the diagnosis
-//! stage adds it with its own adjoint).
+//!
+//! Coulomb floor friction (μ > 0) replaces the floor's projection on a
+//! node moving into the floor, with n the floor normal, v_n = n·v < 0,
+//! v_t = v − n v_n and t̂ = v_t/|v_t|: sliding (|v_t| > −μ v_n) gives
+//! u = v_t + μ v_n t̂, whose Jacobian-transpose is
+//! ū ↦ Π_t ū + μ (t̂·ū) n + (μ v_n/|v_t|)(Π_t ū − t̂ (t̂·ū)) with
+//! Π_t = I − n nᵀ; sticking gives u = 0 and passes nothing back. The
+//! branch is taken from the forward values, like the projections'.
 
 use crate::SimError;
 use crate::grid::Grid;
@@ -23,12 +29,6 @@ pub fn grid_update_backward<T: Real>(
     grad_u: &[T::Lane4],
     grad_pre: &mut Vec<T::Lane4>,
 ) -> Result<(), SimError> {
-    if k.floor.is_some_and(|f| f.friction != T::zero()) {
-        return Err(SimError::InvalidConfig {
-            field: "effects.floor_friction".into(),
-            problem: "the backward pass does not differentiate floor friction yet".into(),
-        });
-    }
     let res = k.res;
     let wall = k.wall_cells;
     grad_pre.clear();
@@ -66,8 +66,9 @@ pub fn grid_update_backward<T: Real>(
                             T::from_index(idx[1]),
                             T::from_index(idx[2]),
                         ) * k.dx;
-                    if pos.dot(&floor.up) <= floor.limit && v.dot(&floor.up) < T::zero() {
-                        gv -= floor.up * floor.up.dot(&gv);
+                    let vn = v.dot(&floor.up);
+                    if pos.dot(&floor.up) <= floor.limit && vn < T::zero() {
+                        gv = floor_adjoint(floor.up, floor.friction, v, vn, gv);
                     }
                 }
                 for a in 0..3 {
@@ -81,4 +82,22 @@ pub fn grid_update_backward<T: Real>(
             }
         });
     Ok(())
+}
+
+/// Adjoint of the floor's velocity map at a node moving into the floor
+/// (`vn` = n·v < 0): the normal projection, and with μ > 0 the Coulomb
+/// slip or stick of the module docs.
+fn floor_adjoint<T: Real>(n: Vec3<T>, friction: T, v: Vec3<T>, vn: T, g: Vec3<T>) -> Vec3<T> {
+    let projected = g - n * n.dot(&g);
+    if friction <= T::zero() {
+        return projected;
+    }
+    let vt = v - n * vn;
+    let speed = vt.norm();
+    if speed <= friction * (-vn) {
+        return Vec3::zeros();
+    }
+    let t = vt / speed;
+    let along = t.dot(&g);
+    projected + n * (friction * along) + (projected - t * along) * (friction * vn / speed)
 }

@@ -2,9 +2,11 @@
 //! → G2P) against central finite differences in f64, for every input it
 //! reads: x, v, F, C, μ, λ, expert weights and the external acceleration
 //! (with air drag and viscous damping on), and the effect parameters
-//! k₁, k₂ (drag) and η (viscosity).
+//! k₁, k₂ (drag) and η (viscosity); and with a floor under the particles,
+//! sliding and sticking under Coulomb friction (issue 6).
 
 use dm_mpm::PhysicsConfig;
+use dm_mpm::config::FloorConfig;
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::material::ParticleMaterial;
 use dm_mpm::real::{Mat3, Vec3};
@@ -44,12 +46,41 @@ struct Scene {
     pure_neo_hookean: bool,
 }
 
+/// A floor under the particles' lower grid nodes, and its friction μ.
+#[derive(Clone, Copy)]
+struct FloorCase {
+    friction: f64,
+}
+
+/// The floor case's plane: nodes at z ≤ 0.47 (grid rows 6 and 7 of 16,
+/// which the lowest particles at z ≈ 0.43 reach) are floor nodes.
+const FLOOR_HEIGHT: f64 = 0.47;
+
+/// With a floor, every particle moves down and sideways, (0.8, 0.3, −0.4)
+/// m/s plus 0.1 m/s noise, so most floor nodes move into the floor with
+/// |v_t| ≈ 0.85 and v_n ≈ −0.4: μ = 0.5 makes most of them slide
+/// (|v_t| > −μ v_n ≈ 0.2) and μ = 5 most of them stick. Light nodes, whose
+/// velocity the elastic force dominates, can take the other branch: the
+/// checks pass through both (dropping the sliding adjoint's curvature term
+/// fails the μ = 5 case too). A node within FD_STEP of the switch would
+/// break the check; these seeds have none.
+const FLOOR_DRIFT: [f64; 3] = [0.8, 0.3, -0.4];
+
 fn scene(seed: u64, pure_neo_hookean: bool) -> Scene {
+    scene_with(seed, pure_neo_hookean, None)
+}
+
+fn scene_with(seed: u64, pure_neo_hookean: bool, floor: Option<FloorCase>) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
     config.grid_res = 16;
     config.dt = 1e-3;
-    config.floor = None;
+    config.floor = floor.map(|_| FloorConfig {
+        up: [0.0, 0.0, 1.0],
+        height: FLOOR_HEIGHT,
+        margin: 0.0,
+    });
+    config.effects.floor_friction = floor.map_or(0.0, |f| f.friction);
     // Exactly continuous in the state: no node may cross the emptiness cut.
     config.empty_node_mass_ratio = 0.0;
     config.effects.air_drag_linear = 0.7;
@@ -62,8 +93,12 @@ fn scene(seed: u64, pure_neo_hookean: bool) -> Scene {
         .map(|_| Vec3::new(0.5, 0.5, 0.5) + rand_vec(&mut rng, 0.07))
         .collect();
     let mut particles = Particles::at_rest(&x, 1e-4, 1.0);
+    let drift = match floor {
+        Some(_) => Vec3::from(FLOOR_DRIFT),
+        None => Vec3::zeros(),
+    };
     for p in 0..n {
-        particles.v[p] = rand_vec(&mut rng, 0.3);
+        particles.v[p] = drift + rand_vec(&mut rng, if floor.is_some() { 0.1 } else { 0.3 });
         particles.c[p] = rand_mat(&mut rng, 0.5);
         particles.f[p] = Mat3::identity() + rand_mat(&mut rng, 0.08);
     }
@@ -157,7 +192,11 @@ fn check(name: &str, s: &Scene, probe: &Probe, analytic: f64, perturb: &dyn Fn(&
 }
 
 fn check_all_inputs(seed: u64, pure_neo_hookean: bool) {
-    let s = scene(seed, pure_neo_hookean);
+    check_scene(seed, scene(seed, pure_neo_hookean));
+}
+
+fn check_scene(seed: u64, s: Scene) {
+    let pure_neo_hookean = s.pure_neo_hookean;
     let n = s.particles.len();
     let probe = Probe::new(n, seed + 100);
     let inputs = SubstepInputs {
@@ -178,7 +217,16 @@ fn check_all_inputs(seed: u64, pure_neo_hookean: bool) {
     let dw: Vec<[f64; 3]> = (0..n)
         .map(|_| [0; 3].map(|_| uniform(&mut rng, -1.0, 1.0)))
         .collect();
-    let da: Vec<Vec3<f64>> = (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect();
+    // An acceleration moves the state by dt·a = 1e-3 a per substep, so its
+    // derivative is ~1e-4 of the O(1) loss (1e-5 with a floor, whose
+    // sticking nodes pass nothing back); at FD_STEP the central difference
+    // then sits at the round-off floor (measured 1–2e-5 relative on the
+    // floor scenes). A direction of length ACCEL_DIRECTION is a 1e-4 m/s²
+    // step: still O(h²) truncation, and far from any stick/slip switch.
+    const ACCEL_DIRECTION: f64 = 1e2;
+    let da: Vec<Vec3<f64>> = (0..n)
+        .map(|_| rand_vec(&mut rng, ACCEL_DIRECTION))
+        .collect();
     let dot3 =
         |g: &[Vec3<f64>], d: &[Vec3<f64>]| g.iter().zip(d).map(|(a, b)| a.dot(b)).sum::<f64>();
     let dotm = |g: &[Mat3<f64>], d: &[Mat3<f64>]| {
@@ -284,4 +332,24 @@ fn issue3_substep_adjoint_matches_finite_differences_mixture() {
 #[test]
 fn issue3_substep_adjoint_matches_finite_differences_neo_hookean() {
     check_all_inputs(3, true);
+}
+
+/// Issue 6: the floor's Coulomb friction in the grid update's adjoint,
+/// floor nodes mostly sliding (μ = 0.5).
+#[test]
+fn issue6_substep_adjoint_matches_finite_differences_floor_sliding() {
+    check_scene(3, scene_with(3, false, Some(FloorCase { friction: 0.5 })));
+}
+
+/// The same floor with floor nodes mostly sticking (μ = 5): nothing flows
+/// back through a sticking node.
+#[test]
+fn issue6_substep_adjoint_matches_finite_differences_floor_sticking() {
+    check_scene(4, scene_with(4, false, Some(FloorCase { friction: 5.0 })));
+}
+
+/// The frictionless floor (projection only), for comparison.
+#[test]
+fn issue6_substep_adjoint_matches_finite_differences_floor_frictionless() {
+    check_scene(5, scene_with(5, false, Some(FloorCase { friction: 0.0 })));
 }

@@ -38,6 +38,12 @@ system-packages:
 # Stage 3 (first-frame Gaussians, then RGB-guided refinement; 30 steps by
 # default) gets one step here: dm-fit writes the splats dm-render uses.
 DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1
+# Diagnosis (issue 6) runs on a small second scene hiding a tilted ground,
+# at the size and quick fit of the hidden-effect evaluation
+# (crates/dm-diagnose/src/evaluation.rs): about 1 min for synth, fit and
+# diagnosis, where the main 72-frame scene takes about 9 min to diagnose.
+DIAG_SCENE ?= --preset cloth --seed 1014 --action lift --effect ground_tilt:8 --frames 36 --width 48 --height 36 --truth-particles 3000 --tracks 120 --bundle-particles 1000
+DIAG_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 0
 
 demo: build
 	@rm -rf $(OUT) && mkdir -p $(OUT)
@@ -47,6 +53,9 @@ demo: build
 	./target/release/dm-sim $(OUT)/scene --model-dir $(OUT)/model --out $(OUT)/sim
 	./target/release/dm-render $(OUT)/model --bundle $(OUT)/scene --view novel --out $(OUT)/render
 	./target/release/dm-eval $(OUT)/model $(OUT)/scene --out $(OUT)/eval
+	./target/release/dm-synth $(DIAG_SCENE) --out $(OUT)/diag_scene --truth $(OUT)/diag_scene.truth.json
+	./target/release/dm-fit $(OUT)/diag_scene --out $(OUT)/diag_model $(DIAG_FIT)
+	./target/release/dm-diagnose $(OUT)/diag_model $(OUT)/diag_scene --out $(OUT)/diagnose --truth $(OUT)/diag_scene.truth.json
 	@echo
 	@echo "== DeformMaster demo summary =="
 	@echo "scene bundle : $(OUT)/scene   (truth kept outside: $(OUT)/scene.truth.json)"
@@ -56,7 +65,9 @@ demo: build
 	@python3 -c 'import json; a=json.load(open("$(OUT)/model/appearance.json")); print("splats       : %d Gaussians, frame-0 PSNR train %.1f dB, held-out camera %.1f dB (%.0f s)" % (a["gaussian_count"], a["mean_train_psnr_db"], a["held_out_psnr_db"], a["fit_seconds"]))' || true
 	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
 	@echo "playground   : ./target/release/dm-play $(OUT)/model   (prints the URL to open)"
+	@python3 -c 'import json; d=json.load(open("$(OUT)/diagnose/diagnosis.json")); t=json.load(open("$(OUT)/diag_scene.truth.json")); e=t.get("effect") or {"name": "none"}; g=d["gain"]; print("diagnosis    : hidden %s -> named %s (confidence %.2f); held-out track %.1f -> %.1f mm; $(OUT)/diagnose/report.md" % (e["name"], d["cause"], d["confidence"], 1e3*g["track_before"], 1e3*g["track_after"]))' || true
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
+	@echo "               $(OUT)/diagnose/error_vs_time.png  $(OUT)/diagnose/candidates.png  $(OUT)/diagnose/error_map.png"
 
 # Capture to rendered model (issue 8): dm-prep turns an RGB-D capture
 # directory (docs/capture.md) into a bundle, then a short fit and a

@@ -303,8 +303,11 @@ pub fn run_fit(
                         ..material_config(options, total)
                     };
                     let index = state.history.len();
-                    let weights_before =
-                        state.model.residual.as_ref().map(|r| r.parameters.clone());
+                    let keeping = state.stage == Stage::Residual
+                        && options.residual_keep == ResidualKeep::LateFrames;
+                    let weights_before = keeping
+                        .then(|| state.model.residual.as_ref().map(|r| r.parameters.clone()))
+                        .flatten();
                     let report = material_step(
                         &mut state.model,
                         bundle,
@@ -313,9 +316,7 @@ pub fn run_fit(
                         index,
                         None,
                     )?;
-                    if state.stage == Stage::Residual
-                        && options.residual_keep == ResidualKeep::LateFrames
-                    {
+                    if keeping {
                         keep_if_better(
                             &mut state.kept_residual,
                             state.iteration,

@@ -370,14 +370,14 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let (loss, mut grads) = loss_and_gradient(
+    let (loss, grads) = loss_and_gradient(
         model,
         bundle,
         fit_frames(bundle, config),
         config.window,
         extra,
     )?;
-    let grads_frame_losses = std::mem::take(&mut grads.frame_losses);
+    let late_loss = late_frames_loss(&grads.frame_losses);
     let mut all_grads = to_param_set(&grads.patches)?;
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
@@ -416,7 +416,7 @@ pub fn material_step(
         poisson_median: poisson,
         seconds: start.elapsed().as_secs_f64(),
         rgb_l1: None,
-        late_loss: Some(late_frames_loss(&grads_frame_losses)),
+        late_loss: Some(late_loss),
     })
 }
 

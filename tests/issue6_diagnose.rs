@@ -34,6 +34,24 @@ fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
             .is_file()
     );
     assert!(hidden.track_after < hidden.track_before);
+    // Every trial's per-frame error is kept as evidence, one entry per frame
+    // (none for a trial that diverged).
+    let trials: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("hidden/diagnosis/trials.json"))
+            .expect("trials.json"),
+    )
+    .expect("trials.json parses");
+    let frames = trials["base_track_per_frame"]
+        .as_array()
+        .expect("base curve")
+        .len();
+    let records = trials["trials"].as_array().expect("trial list");
+    assert!(records.len() >= 8 && frames > 0);
+    assert!(
+        records
+            .iter()
+            .all(|r| matches!(r["track_per_frame"].as_array().map(Vec::len), Some(n) if n == frames || n == 0))
+    );
 
     let (null, d) =
         run_scene(NULL_SEED, true, &dir.path().join("null"), &options).expect("null scene");

@@ -145,6 +145,31 @@ pub struct RefitRecord {
     pub note: String,
 }
 
+/// One candidate trial in `trials.json`: every parameter setting tried,
+/// with its per-frame track error, so a reader (or a script) can see how
+/// each candidate moved the error over time, not only its two means.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrialRecord {
+    pub candidate: String,
+    pub parameters: BTreeMap<String, f64>,
+    /// Train / test split means (metres; `null` in the JSON when the trial
+    /// diverged).
+    pub track_train: f64,
+    pub track_test: f64,
+    /// Track error per frame (metres; empty when the trial diverged).
+    pub track_per_frame: Vec<f64>,
+}
+
+/// `trials.json`: the fitted model's per-frame track error and every trial's.
+#[derive(Serialize)]
+struct TrialsFile<'a> {
+    /// Frame ranges [start, end) of the splits.
+    train_frames: [usize; 2],
+    test_frames: [usize; 2],
+    base_track_per_frame: &'a [f64],
+    trials: &'a [TrialRecord],
+}
+
 /// Track / Chamfer of a rollout over train and test (NaN rows if it diverged).
 #[derive(Clone, Debug)]
 struct Scored {
@@ -253,10 +278,18 @@ pub fn diagnose(
         .collect();
     let total = all_trials.len();
     let mut best_per_candidate: BTreeMap<&'static str, (Trial, Scored)> = BTreeMap::new();
+    let mut trial_records = Vec::with_capacity(total);
     for (i, trial) in all_trials.into_iter().enumerate() {
         progress(&format!("candidate {}", trial.candidate.name()), i, total);
         let scored = score_trial(&trial.model, &bundle);
         let name = trial.candidate.name();
+        trial_records.push(TrialRecord {
+            candidate: name.into(),
+            parameters: trial.parameters.clone(),
+            track_train: scored.track_train,
+            track_test: scored.track_test,
+            track_per_frame: scored.track_per_frame.clone(),
+        });
         let better = best_per_candidate
             .get(name)
             .is_none_or(|(_, s)| scored.track_train < s.track_train);
@@ -406,6 +439,15 @@ pub fn diagnose(
     };
     let plot_files = plots::write_plots(&plot_inputs, out)?;
     report::write_report(out, &diagnosis, &plot_files, &bundle, &base_run)?;
+    write_json_atomic(
+        &out.join("trials.json"),
+        &TrialsFile {
+            train_frames: split.train,
+            test_frames: split.test,
+            base_track_per_frame: &base.track_per_frame,
+            trials: &trial_records,
+        },
+    )?;
     write_json_atomic(&out.join("diagnosis.json"), &diagnosis)?;
     Ok(diagnosis)
 }

@@ -1,6 +1,6 @@
 //! The full hidden-effect evaluation of issue 6:
 //!
-//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS]
+//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates]
 //!
 //! synthesises HIDDEN scenes (default 16) with a seeded random effect,
 //! preset and magnitude and NULL scenes (default 4) without, fits and
@@ -17,7 +17,10 @@ use std::io::Write;
 use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    // `--fit-candidates` anywhere: score candidates by fits from the start.
+    let fit_candidates = args.iter().any(|a| a == "--fit-candidates");
+    args.retain(|a| a != "--fit-candidates");
     let out = PathBuf::from(
         args.first()
             .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?,
@@ -33,7 +36,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     };
     std::fs::create_dir_all(&out)?;
-    let options = DiagnoseOptions::default();
+    let options = DiagnoseOptions {
+        fit_candidates,
+        ..DiagnoseOptions::default()
+    };
     let mut results: Vec<SceneResult> = Vec::new();
     // Interleave null scenes among the hidden ones so a partial run has both.
     let every = hidden.checked_div(null).map_or(u64::MAX, |r| r.max(1) + 1);

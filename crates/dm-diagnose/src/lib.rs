@@ -66,6 +66,11 @@ pub struct DiagnoseOptions {
     pub refit_iters: usize,
     /// Score threshold below which the cause is `none`.
     pub none_threshold: f64,
+    /// Score each candidate by a fit from the start with its best trial's
+    /// effect in place (the fitted model's own `dm-fit` options, read from
+    /// its `fit_report.json`), instead of the effect added on top of a
+    /// fit that has absorbed part of it. One fit per candidate.
+    pub fit_candidates: bool,
 }
 
 impl Default for DiagnoseOptions {
@@ -73,6 +78,7 @@ impl Default for DiagnoseOptions {
         Self {
             refit_iters: 2,
             none_threshold: NONE_THRESHOLD,
+            fit_candidates: false,
         }
     }
 }
@@ -168,6 +174,8 @@ struct TrialsFile<'a> {
     test_frames: [usize; 2],
     base_track_per_frame: &'a [f64],
     trials: &'a [TrialRecord],
+    /// With `fit_candidates`: each candidate's fit from the start.
+    candidate_fits: &'a [TrialRecord],
 }
 
 /// Track / Chamfer of a rollout over train and test (NaN rows if it diverged).
@@ -199,12 +207,19 @@ fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout),
 fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
     score_model(model, bundle)
         .map(|(s, _)| s)
-        .unwrap_or(Scored {
+        .unwrap_or_else(|_| Scored::failed())
+}
+
+impl Scored {
+    /// What a diverging or failed trial scores.
+    fn failed() -> Self {
+        Scored {
             track_train: f64::INFINITY,
             track_test: f64::INFINITY,
             chamfer_test: f64::INFINITY,
             track_per_frame: Vec::new(),
-        })
+        }
+    }
 }
 
 /// Progress: (what, done, total).
@@ -297,6 +312,28 @@ pub fn diagnose(
             best_per_candidate.insert(name, (trial, scored));
         }
     }
+    let mut fit_records = Vec::new();
+    if options.fit_candidates {
+        let fits = fit_candidates(model_dir, &bundle, &best_per_candidate, out, progress)?;
+        for CandidateFit {
+            name,
+            model: fitted,
+            scored,
+        } in fits
+        {
+            if let Some((trial, best)) = best_per_candidate.get_mut(name) {
+                fit_records.push(TrialRecord {
+                    candidate: name.into(),
+                    parameters: trial.parameters.clone(),
+                    track_train: scored.track_train,
+                    track_test: scored.track_test,
+                    track_per_frame: scored.track_per_frame.clone(),
+                });
+                trial.model = fitted;
+                *best = scored;
+            }
+        }
+    }
     let relative = |before: f64, after: f64| {
         if after.is_finite() && before > 0.0 {
             (before - after) / before
@@ -348,7 +385,14 @@ pub fn diagnose(
                     problem: "internal: the named candidate has no trial".into(),
                 })?;
         let mut best_trial = (trial, scored);
-        let refine = refinements(&best_trial.0, &model);
+        // A candidate fitted from the start already carries its refitted
+        // material and gains; refining its effect on the original fit's
+        // material would mix the two.
+        let refine = if options.fit_candidates {
+            Vec::new()
+        } else {
+            refinements(&best_trial.0, &model)
+        };
         let effect_trials = refine.len();
         for (i, t) in refine.into_iter().enumerate() {
             progress("refining the effect parameter", i, effect_trials);
@@ -359,7 +403,23 @@ pub fn diagnose(
         }
         let (trial, mut scored) = best_trial;
         let mut extended_model = trial.model.clone();
-        let (record, refitted) = refit_material(&extended_model, &bundle, options, progress)?;
+        let (record, refitted) = if options.fit_candidates {
+            let before = train_loss(&extended_model, &bundle, bundle.meta.split.train[1])?;
+            (
+                RefitRecord {
+                    effect_trials: 0,
+                    material_iterations: 0,
+                    train_loss_before: before,
+                    train_loss_after: before,
+                    material_kept: false,
+                    note: "fitted from the start with the effect in place (--fit-candidates)"
+                        .into(),
+                },
+                None,
+            )
+        } else {
+            refit_material(&extended_model, &bundle, options, progress)?
+        };
         if let Some(refitted) = refitted {
             let s = score_trial(&refitted, &bundle);
             if s.track_train < scored.track_train {
@@ -446,6 +506,7 @@ pub fn diagnose(
             test_frames: split.test,
             base_track_per_frame: &base.track_per_frame,
             trials: &trial_records,
+            candidate_fits: &fit_records,
         },
     )?;
     write_json_atomic(&out.join("diagnosis.json"), &diagnosis)?;
@@ -487,6 +548,55 @@ fn near_hand_tracks(bundle: &Bundle) -> Vec<usize> {
         .collect();
     d.sort_by(|a, b| a.0.total_cmp(&b.0));
     d.iter().take((d.len() / 3).max(1)).map(|x| x.1).collect()
+}
+
+/// A candidate's fit from the start and its errors.
+struct CandidateFit {
+    name: &'static str,
+    model: WorldModel,
+    scored: Scored,
+}
+
+/// Each candidate's best trial fitted from the start: the fitted model's
+/// own dm-fit options (its run record), the bundle's default starting
+/// model with the effect added. A fit that fails (e.g. diverges) scores
+/// infinity.
+fn fit_candidates(
+    model_dir: &Path,
+    bundle: &Bundle,
+    best: &BTreeMap<&'static str, (Trial, Scored)>,
+    out: &Path,
+    progress: Progress<'_>,
+) -> Result<Vec<CandidateFit>, DiagnoseError> {
+    let report_path = model_dir.join("fit_report.json");
+    let report: dm_fit::run::FitReport = dm_bundle::read_json(&report_path)?;
+    let options = report.options;
+    let mut fitted = Vec::with_capacity(best.len());
+    for (i, (&name, (trial, _))) in best.iter().enumerate() {
+        progress(
+            &format!("fitting with {name} from the start"),
+            i,
+            best.len(),
+        );
+        let start = WorldModel::from_bundle(bundle, &options.model)?;
+        let start = apply(&start, trial.candidate, &trial.parameters);
+        let dir = out.join("candidate_fits").join(name);
+        let result = dm_fit::run::run_fit_from(bundle, &options, start, &dir, &mut |_| {})
+            .and_then(|_| Ok(dm_bundle::read_json::<WorldModel>(&dir.join("model.json"))?));
+        match result {
+            Ok(model) => fitted.push(CandidateFit {
+                name,
+                scored: score_trial(&model, bundle),
+                model,
+            }),
+            Err(_) => fitted.push(CandidateFit {
+                name,
+                model: trial.model.clone(),
+                scored: Scored::failed(),
+            }),
+        }
+    }
+    Ok(fitted)
 }
 
 /// A few material Adam steps with the effect in place (every effect's

@@ -247,6 +247,32 @@ pub fn run_fit(
     stop_after: Option<usize>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
+    fit_stages(bundle, options, out, resume, stop_after, None, progress)
+}
+
+/// The same stages from a given starting model instead of the bundle's
+/// default one (dm-diagnose fits a candidate effect from the start, on the
+/// same terms as the model it is compared with). Not resumable: the
+/// checkpoint's options do not record the starting model.
+pub fn run_fit_from(
+    bundle: &Bundle,
+    options: &FitOptions,
+    initial: WorldModel,
+    out: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FitOutcome, FitError> {
+    fit_stages(bundle, options, out, false, None, Some(initial), progress)
+}
+
+fn fit_stages(
+    bundle: &Bundle,
+    options: &FitOptions,
+    out: &Path,
+    resume: bool,
+    stop_after: Option<usize>,
+    initial: Option<WorldModel>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FitOutcome, FitError> {
     std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut state = if resume && checkpoint_path.is_file() {
@@ -266,7 +292,10 @@ pub fn run_fit(
         ));
         saved
     } else {
-        let model = WorldModel::from_bundle(bundle, &options.model)?;
+        let model = match initial {
+            Some(model) => model,
+            None => WorldModel::from_bundle(bundle, &options.model)?,
+        };
         Checkpoint {
             options: options.clone(),
             stage: Stage::Material1,

@@ -30,6 +30,10 @@ struct Cli {
     /// Held-out score below which the cause is `none`.
     #[arg(long, default_value_t = NONE_THRESHOLD)]
     threshold: f64,
+    /// Score each candidate by a fit from the start with its effect in
+    /// place (the model's own dm-fit options; one fit per candidate).
+    #[arg(long)]
+    fit_candidates: bool,
 }
 
 fn main() -> Result<()> {
@@ -50,6 +54,7 @@ fn main() -> Result<()> {
     let options = DiagnoseOptions {
         refit_iters: cli.refit_iters,
         none_threshold: cli.threshold,
+        fit_candidates: cli.fit_candidates,
     };
     let d = diagnose(
         &cli.model_dir,

@@ -1,18 +1,10 @@
 //! Issue 6: `run_fit_from` runs dm-fit's stages from a given starting
 //! model (dm-diagnose fits each candidate effect from the start).
 
-use clap::Parser;
-use dm_bundle::Bundle;
-use dm_fit::run::{FitOptions, run_fit, run_fit_from};
-use dm_model::WorldModel;
-use dm_synth::{Preset, SynthConfig};
+mod common;
 
-#[derive(Parser)]
-#[command(name = "dm-fit", no_binary_name = true)]
-struct Flags {
-    #[command(flatten)]
-    options: FitOptions,
-}
+use dm_fit::run::{run_fit, run_fit_from};
+use dm_model::WorldModel;
 
 fn saved(dir: &std::path::Path) -> WorldModel {
     dm_bundle::read_json(&dir.join("model.json")).expect("model.json")
@@ -21,30 +13,9 @@ fn saved(dir: &std::path::Path) -> WorldModel {
 #[test]
 fn issue6_fit_from_a_starting_model_keeps_its_effect_and_matches_run_fit_from_the_default() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Rope, 5),
-        &scene,
-        &dir.path().join("truth.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
-    let bundle = Bundle::open(&scene).expect("bundle");
-    let flags = [
-        "--iters",
-        "1",
-        "--stage2-iters",
-        "0",
-        "--gain-evals",
-        "0",
-        "--patches",
-        "8",
-        "--rgb-iters",
-        "0",
-        "--residual",
-        "none",
-    ];
-    let options = Flags::try_parse_from(flags).expect("flags").options;
+    let bundle = common::tiny_rope(dir.path());
+    let flags = ["--residual", "none"];
+    let options = common::fit_options(&flags);
 
     let plain = dir.path().join("plain");
     run_fit(&bundle, &options, &plain, false, None, &mut |_| {}).expect("fit");

@@ -1,19 +1,11 @@
 //! Issue 4: `--residual-keep late-frames` ends the residual-only stage with
 //! the network whose open-loop rollout is best on the late training frames.
 
-use clap::Parser;
-use dm_bundle::Bundle;
-use dm_fit::material_fit::{late_frames_loss, train_frame_losses};
-use dm_fit::run::{FitOptions, FitOutcome, run_fit};
-use dm_model::WorldModel;
-use dm_synth::{Preset, SynthConfig};
+mod common;
 
-#[derive(Parser)]
-#[command(name = "dm-fit", no_binary_name = true)]
-struct Flags {
-    #[command(flatten)]
-    options: FitOptions,
-}
+use dm_fit::material_fit::{late_frames_loss, train_frame_losses};
+use dm_fit::run::{FitOutcome, run_fit};
+use dm_model::WorldModel;
 
 /// The saved model is re-read from JSON (exact f64 round trip) and rolled
 /// out again by the same deterministic code: only summation order inside
@@ -23,29 +15,11 @@ const SAME_ROLLOUT_RELATIVE: f64 = 1e-9;
 #[test]
 fn issue4_residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Rope, 5),
-        &scene,
-        &dir.path().join("truth.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
-    let bundle = Bundle::open(&scene).expect("bundle");
+    let bundle = common::tiny_rope(dir.path());
     // At 6× the default step the stage's first step overshoots (late-frames
     // loss 1.6e-4 → 5.8e-3 on this scene) and the second recovers only
     // partly, so the stage's start is the network to keep.
     let flags = [
-        "--iters",
-        "1",
-        "--stage2-iters",
-        "0",
-        "--gain-evals",
-        "0",
-        "--patches",
-        "8",
-        "--rgb-iters",
-        "0",
         "--residual",
         "pgnd",
         "--residual-iters",
@@ -55,7 +29,7 @@ fn issue4_residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
         "--residual-keep",
         "late-frames",
     ];
-    let options = Flags::try_parse_from(flags).expect("flags").options;
+    let options = common::fit_options(&flags);
     let out = dir.path().join("model");
     let FitOutcome::Finished(report) =
         run_fit(&bundle, &options, &out, false, None, &mut |_| {}).expect("fit")

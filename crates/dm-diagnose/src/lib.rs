@@ -131,6 +131,9 @@ pub struct Diagnosis {
     pub gain: Gain,
     pub effect_parameters: BTreeMap<String, f64>,
     pub threshold: f64,
+    /// Whether each candidate was scored by a fit from the start
+    /// (`--fit-candidates`) rather than added to the fitted model.
+    pub candidates_fitted: bool,
     pub signatures: signatures::Signatures,
     pub regions_test: Vec<analysis::RegionError>,
     pub truth: Option<TruthComparison>,
@@ -479,6 +482,7 @@ pub fn diagnose(
         gain,
         effect_parameters,
         threshold: options.none_threshold,
+        candidates_fitted: options.fit_candidates,
         signatures: sig,
         regions_test,
         truth: truth_cmp,

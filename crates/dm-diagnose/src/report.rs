@@ -81,11 +81,19 @@ pub(crate) fn write_report(
         );
     }
     let _ = writeln!(s, "## Candidates\n");
-    let _ = writeln!(
-        s,
+    let how = if d.candidates_fitted {
+        "Each effect's best trial (parameter chosen on the training frames with the fitted \
+         model's material and gains) was then fitted from the start with the fitted model's own \
+         dm-fit options (`--fit-candidates`), and that fit compared with the fitted model on the \
+         training frames (train reduction) and the **held-out** test frames"
+    } else {
         "Each effect was added to the fitted model (material and gains held), its parameter \
          chosen on the training frames (train reduction), and checked on the **held-out** \
-         test frames; score = the smaller of the two shares of track error removed.\n"
+         test frames"
+    };
+    let _ = writeln!(
+        s,
+        "{how}; score = the smaller of the two shares of track error removed.\n"
     );
     let _ = writeln!(
         s,

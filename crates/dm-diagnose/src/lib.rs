@@ -169,6 +169,18 @@ pub struct TrialRecord {
     pub track_per_frame: Vec<f64>,
 }
 
+impl TrialRecord {
+    fn new(candidate: &str, parameters: &BTreeMap<String, f64>, scored: &Scored) -> Self {
+        TrialRecord {
+            candidate: candidate.into(),
+            parameters: parameters.clone(),
+            track_train: scored.track_train,
+            track_test: scored.track_test,
+            track_per_frame: scored.track_per_frame.clone(),
+        }
+    }
+}
+
 /// `trials.json`: the fitted model's per-frame track error and every trial's.
 #[derive(Serialize)]
 struct TrialsFile<'a> {
@@ -301,13 +313,7 @@ pub fn diagnose(
         progress(&format!("candidate {}", trial.candidate.name()), i, total);
         let scored = score_trial(&trial.model, &bundle);
         let name = trial.candidate.name();
-        trial_records.push(TrialRecord {
-            candidate: name.into(),
-            parameters: trial.parameters.clone(),
-            track_train: scored.track_train,
-            track_test: scored.track_test,
-            track_per_frame: scored.track_per_frame.clone(),
-        });
+        trial_records.push(TrialRecord::new(name, &trial.parameters, &scored));
         let better = best_per_candidate
             .get(name)
             .is_none_or(|(_, s)| scored.track_train < s.track_train);
@@ -325,13 +331,7 @@ pub fn diagnose(
         } in fits
         {
             if let Some((trial, best)) = best_per_candidate.get_mut(name) {
-                fit_records.push(TrialRecord {
-                    candidate: name.into(),
-                    parameters: trial.parameters.clone(),
-                    track_train: scored.track_train,
-                    track_test: scored.track_test,
-                    track_per_frame: scored.track_per_frame.clone(),
-                });
+                fit_records.push(TrialRecord::new(name, &trial.parameters, &scored));
                 trial.model = fitted;
                 *best = scored;
             }

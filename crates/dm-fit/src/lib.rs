@@ -2,7 +2,8 @@
 //! [`run::run_fit`] runs stage 1 (material with default gains), the CMA-ES
 //! gain selection, stage 2 (material with the selected gains) and stage 3
 //! (first-frame Gaussians, then RGB-guided refinement, [`rgb_stage`]);
-//! [`material_fit`] is one differentiated rollout and Adam step.
+//! [`material_fit`] is one differentiated rollout and Adam step;
+//! [`sensitivity`] reports how sharply the clip pins the fitted material.
 //!
 //! The optimisers:
 //!
@@ -25,3 +26,4 @@ pub mod optim;
 pub mod plot;
 pub mod rgb_stage;
 pub mod run;
+pub mod sensitivity;

@@ -9,6 +9,7 @@ use crate::material_fit::{
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
+use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
 use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
@@ -456,8 +457,14 @@ fn fit_stages(
     let frames = fit_frames(bundle, &material_config(options, 0));
     let final_loss = train_loss(&state.model, bundle, frames)?;
     let (youngs, poisson) = state.model.material_medians();
+    progress("probing how sharply the clip pins E and ν");
+    let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
     let report = FitReport {
-        material: serde_json::json!({ "E_median_pa": youngs, "nu_median": poisson }),
+        material: serde_json::json!({
+            "E_median_pa": youngs,
+            "nu_median": poisson,
+            "sensitivity": sensitivity,
+        }),
         dca: serde_json::json!({ "kp": state.model.actuator.kp, "kd": state.model.actuator.kd, "mode": state.model.actuator.mode }),
         loss: serde_json::json!({
             "initial": state.history.first().map(|r| r.loss),

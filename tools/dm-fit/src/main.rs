@@ -70,6 +70,19 @@ fn main() -> Result<()> {
         report.loss["final"].as_f64().unwrap_or(f64::NAN),
         report.seconds
     );
+    let moved = &report.material["sensitivity"];
+    let percent = |key: &str| {
+        moved[key]
+            .as_f64()
+            .map_or("diverged".into(), |v| format!("{:+.1} %", 100.0 * v))
+    };
+    println!(
+        "  train loss with E ×0.75 / ×1.25: {} / {}; with ν −0.05 / +0.05: {} / {} (a change near 0: the clip barely constrains it)",
+        percent("E_x0.75"),
+        percent("E_x1.25"),
+        percent("nu_minus_0.05"),
+        percent("nu_plus_0.05"),
+    );
     println!(
         "  wrote {}/{{model.json, youngs_pa.npy, poisson.npy, expert_weights.npy, fit_report.json, loss_curve.png}}",
         cli.out.display()

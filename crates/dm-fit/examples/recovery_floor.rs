@@ -126,9 +126,9 @@ fn main() -> Result<()> {
     };
     add("untrained".into(), &untrained)?;
 
-    // The truth's homogeneous material: its E, ν and expert mix (truth.rs).
+    // The truth's homogeneous material: its E, ν and expert mix.
     let mut true_material = untrained.clone();
-    let truth_weights: [f64; 3] = [0.3, 0.6, 0.1];
+    let truth_weights = dm_synth::truth::HOMOGENEOUS_EXPERT_WEIGHTS;
     true_material.params = dm_mpm::PatchParams::uniform(
         untrained.patches.patch_count(),
         &untrained.bounds,
@@ -138,11 +138,9 @@ fn main() -> Result<()> {
     );
     add("true E, ν; default gains".into(), &true_material)?;
 
-    // The truth's grip (truth.rs), on the model's hand tracks.
+    // The truth's grip, on the model's hand tracks.
     let mut true_grip = true_material.clone();
-    true_grip.actuator.kp = 2.0e4;
-    true_grip.actuator.kd = 300.0;
-    true_grip.actuator.grasp_radius = 0.014;
+    true_grip.actuator = dm_synth::truth::TRUTH_GRIP;
     add("true E, ν; truth's grip".into(), &true_grip)?;
     // How sharply the data pins the material: the bar's edges (E ±25 %,
     // ν ±0.05) with everything else true.

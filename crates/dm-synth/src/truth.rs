@@ -20,6 +20,18 @@ const SETTLE_FRAMES: usize = 8;
 const TRUTH_GRID: usize = 48;
 const TRUTH_SUBSTEPS_PER_FRAME: usize = 84;
 
+/// Expert mix (Neo-Hookean, fixed corotated, StVK) of a `--homogeneous` truth.
+pub const HOMOGENEOUS_EXPERT_WEIGHTS: [f64; 3] = [0.3, 0.6, 0.1];
+
+/// The truth's hands. Real fingers grip firmly: stiffer and tighter than
+/// the model's default actuators.
+pub const TRUTH_GRIP: ActuatorConfig = ActuatorConfig {
+    mode: ActuatorMode::Distributed,
+    kp: 2.0e4,
+    kd: 300.0,
+    grasp_radius: 0.014,
+};
+
 /// Everything the sensor model needs.
 #[derive(Clone, Debug)]
 pub struct GroundTruth {
@@ -115,7 +127,7 @@ fn truth_material(config: &SynthConfig, cloud: &ParticleCloud) -> TruthMaterialF
     let n = cloud.len();
     let seed = splitmix(config.seed ^ 0x3a7e_41a1);
     let (mut youngs, poisson, weights) = if config.homogeneous {
-        (vec![e0; n], vec![nu0; n], vec![[0.3, 0.6, 0.1]; n])
+        (vec![e0; n], vec![nu0; n], vec![HOMOGENEOUS_EXPERT_WEIGHTS; n])
     } else {
         let e_field = SmoothField::new(seed, 0.08);
         let nu_field = SmoothField::new(seed ^ 1, 0.1);
@@ -315,13 +327,7 @@ pub fn simulate_truth(
         _ => None,
     };
     let material = ParticleMaterial::<f32>::from_fields(&youngs, &poisson, &weights);
-    // Real fingers grip firmly: stiffer and tighter than the model's default actuators.
-    let grip = ActuatorConfig {
-        mode: ActuatorMode::Distributed,
-        kp: 2.0e4,
-        kd: 300.0,
-        grasp_radius: 0.014,
-    };
+    let grip = TRUTH_GRIP;
     let mut world = World::new(
         physics.clone(),
         &cloud.positions,

@@ -16,12 +16,12 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use dm_bundle::{Bundle, Split, Tracks};
-use ndarray::{Array2, Array3};
 use dm_fit::run::{FitOptions, run_fit_from};
 use dm_model::WorldModel;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_mpm::neighbors::PointIndex;
 use dm_synth::TruthFile;
+use ndarray::{Array2, Array3};
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -48,7 +48,9 @@ struct Variant {
 /// One markdown table of every variant's errors against `reference`.
 fn table(title: &str, variants: &[Variant], reference: &Tracks, split: Split) {
     println!("\n{title}\n");
-    println!("| variant | frame-0 Chamfer (mm) | train Chamfer | held-out Chamfer | train Track | held-out Track |");
+    println!(
+        "| variant | frame-0 Chamfer (mm) | train Chamfer | held-out Chamfer | train Track | held-out Track |"
+    );
     println!("|---|---|---|---|---|---|");
     for v in variants {
         let errors = frame_errors(&v.rollout, v.surface_count, reference);
@@ -70,7 +72,9 @@ fn true_surface(truth: &dm_synth::GroundTruth) -> Tracks {
         .filter(|&i| truth.cloud.on_surface[i])
         .collect();
     let frames = truth.frames.len();
-    let points = Array3::from_shape_fn((frames, ids.len(), 3), |(t, k, a)| truth.frames[t][ids[k]][a]);
+    let points = Array3::from_shape_fn((frames, ids.len(), 3), |(t, k, a)| {
+        truth.frames[t][ids[k]][a]
+    });
     Tracks {
         object_points: points,
         object_visibility: Array2::from_elem((frames, ids.len()), true),
@@ -83,10 +87,7 @@ fn true_surface(truth: &dm_synth::GroundTruth) -> Tracks {
 /// The model's particles moved as the nearest truth particle at frame 0
 /// moves: perfect dynamics on the model's particle set.
 fn carried_by_truth(model: &WorldModel, truth: &dm_synth::GroundTruth) -> Vec<Vec<[f32; 3]>> {
-    let first: Vec<[f64; 3]> = truth.frames[0]
-        .iter()
-        .map(|p| p.map(f64::from))
-        .collect();
+    let first: Vec<[f64; 3]> = truth.frames[0].iter().map(|p| p.map(f64::from)).collect();
     let index = PointIndex::new(&first);
     let nearest: Vec<usize> = model
         .particles
@@ -101,7 +102,11 @@ fn carried_by_truth(model: &WorldModel, truth: &dm_synth::GroundTruth) -> Vec<Ve
                 .particles
                 .iter()
                 .zip(&nearest)
-                .map(|(p, &j)| std::array::from_fn(|a| (p[a] + f64::from(frame[j][a] - truth.frames[0][j][a])) as f32))
+                .map(|(p, &j)| {
+                    std::array::from_fn(|a| {
+                        (p[a] + f64::from(frame[j][a] - truth.frames[0][j][a])) as f32
+                    })
+                })
                 .collect()
         })
         .collect()
@@ -153,7 +158,10 @@ fn main() -> Result<()> {
             truth_file.material.nu + nu_shift,
             truth_weights.map(f64::ln),
         );
-        add(format!("E ×{e_factor}, ν {nu_shift:+}; truth's grip"), &shifted)?;
+        add(
+            format!("E ×{e_factor}, ν {nu_shift:+}; truth's grip"),
+            &shifted,
+        )?;
     }
 
     if let Some(dir) = &args.gain_search {
@@ -189,7 +197,17 @@ fn main() -> Result<()> {
         surface_count: untrained.surface_count,
     });
     let split = bundle.meta.split;
-    table("Against the observed tracks (benchmark protocol):", &variants, &bundle.tracks, split);
-    table("Against the true surface (noise-free):", &variants, &true_surface(&truth), split);
+    table(
+        "Against the observed tracks (benchmark protocol):",
+        &variants,
+        &bundle.tracks,
+        split,
+    );
+    table(
+        "Against the true surface (noise-free):",
+        &variants,
+        &true_surface(&truth),
+        split,
+    );
     Ok(())
 }

@@ -55,7 +55,11 @@ pub fn material_sensitivity(
     base_loss: f64,
 ) -> Result<MaterialSensitivity, FitError> {
     let relative = |youngs_factor: f64, poisson_shift: f64| -> Result<f64, FitError> {
-        let loss = train_loss(&moved_material(model, youngs_factor, poisson_shift), bundle, frames)?;
+        let loss = train_loss(
+            &moved_material(model, youngs_factor, poisson_shift),
+            bundle,
+            frames,
+        )?;
         Ok(loss / base_loss - 1.0)
     };
     Ok(MaterialSensitivity {

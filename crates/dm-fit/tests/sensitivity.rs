@@ -43,7 +43,9 @@ fn issue3_fit_report_has_the_material_sensitivity() {
         dm_bundle::read_json(&out.join("fit_report.json")).expect("report");
     let moved = &report["material"]["sensitivity"];
     for key in ["E_x0.75", "E_x1.25", "nu_minus_0.05", "nu_plus_0.05"] {
-        let change = moved[key].as_f64().unwrap_or_else(|| panic!("{key}: {moved}"));
+        let change = moved[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key}: {moved}"));
         // A finite relative change, and not the identity: every move
         // alters the rollout of this stretched rope somewhat.
         assert!(change.is_finite() && change != 0.0, "{key}: {change}");

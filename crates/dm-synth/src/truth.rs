@@ -127,7 +127,11 @@ fn truth_material(config: &SynthConfig, cloud: &ParticleCloud) -> TruthMaterialF
     let n = cloud.len();
     let seed = splitmix(config.seed ^ 0x3a7e_41a1);
     let (mut youngs, poisson, weights) = if config.homogeneous {
-        (vec![e0; n], vec![nu0; n], vec![HOMOGENEOUS_EXPERT_WEIGHTS; n])
+        (
+            vec![e0; n],
+            vec![nu0; n],
+            vec![HOMOGENEOUS_EXPERT_WEIGHTS; n],
+        )
     } else {
         let e_field = SmoothField::new(seed, 0.08);
         let nu_field = SmoothField::new(seed ^ 1, 0.1);

@@ -27,7 +27,6 @@ pub fn quick_fit_options() -> FitOptions {
         residual_iters: 0,
         // No residual-only stage; `last` is what records before the option read as.
         residual_keep: dm_fit::run::ResidualKeep::Last,
-        residual_turns: false,
         window: 20,
         gain_evals: 4,
         seed: 0,

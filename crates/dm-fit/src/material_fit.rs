@@ -19,8 +19,7 @@ use crate::optim::{
 };
 use dm_bundle::Bundle;
 use dm_model::residual::{
-    FrameStart, Turn, apply_residual, apply_residual_turned, frame_inputs, frame_start,
-    gravity_turn, residual_backward,
+    FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
 use dm_model::{ExpertChoice, ModelError, WorldModel};
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -64,10 +63,6 @@ pub struct MaterialFitConfig {
     pub residual_learning_rate: f64,
     /// Step the residual network only; the material stays as it is.
     pub freeze_material: bool,
-    /// Seed of random turns about the gravity axis under which the residual
-    /// is trained (`--residual-turns`); `None` trains it as rollouts run.
-    #[serde(default)]
-    pub residual_turn_seed: Option<u64>,
 }
 
 impl MaterialFitConfig {
@@ -93,7 +88,6 @@ impl Default for MaterialFitConfig {
             frames: None,
             residual_learning_rate: 5e-3,
             freeze_material: false,
-            residual_turn_seed: None,
         }
     }
 }
@@ -204,29 +198,15 @@ pub fn late_frames_loss(frame_losses: &[f64]) -> f64 {
     late.iter().sum::<f64>() / count as f64
 }
 
-/// The angle of each frame's turn for one gradient step: uniform in
-/// [0, 2π), drawn from the step's own seed so a resumed fit repeats them.
-fn turn_angles(seed: u64, step: usize, frames: usize) -> Vec<f64> {
-    use rand::{RngExt, SeedableRng};
-    let step_seed = seed ^ (step as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(step_seed);
-    (0..frames)
-        .map(|_| rng.random_range(0.0..std::f64::consts::TAU))
-        .collect()
-}
-
 /// The train-split loss L_dyn (+ the residual's regulariser) of `model`
 /// over `frames` frames and its gradient with respect to the patch
 /// parameters and the residual's weights; `extra` adds a per-frame term.
-/// With `turn_angles`, the residual of frame t is evaluated in the frame
-/// turned by `turn_angles[t]` about the gravity axis.
 pub fn loss_and_gradient(
     model: &WorldModel,
     bundle: &Bundle,
     frames: usize,
     window: usize,
     mut extra: Option<&mut dyn FrameTerm>,
-    turn_angles: Option<&[f64]>,
 ) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
     if frames < 2 {
@@ -242,14 +222,6 @@ pub fn loss_and_gradient(
     let fixed = FixedTerms::new(model, bundle)?;
     // Σ_p |Δv_p|² / n per frame, averaged over frames like L_dyn.
     let regulariser = RESIDUAL_REGULARISER / (n * steps) as f64;
-    let physics = world.config().clone();
-    let turns: Vec<Option<Turn>> = (0..steps)
-        .map(|t| {
-            turn_angles
-                .and_then(|angles| angles.get(t))
-                .and_then(|&angle| gravity_turn(&physics, angle))
-        })
-        .collect();
 
     // Forward: checkpoints at frame starts, loss gradients at frame ends.
     let mut checkpoints = Vec::with_capacity(steps);
@@ -266,8 +238,7 @@ pub fn loss_and_gradient(
         let (from, to, grasp) = model.hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
         if let Some(network) = &network {
-            let (dv, _) =
-                apply_residual_turned(&mut world, network, &starts, t, turns[t].as_ref())?;
+            let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
             loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
@@ -316,7 +287,6 @@ pub fn loss_and_gradient(
                 &correction,
                 &mut carried,
                 regulariser,
-                turns[t].as_ref(),
             )?;
             grad_residual
                 .iter_mut()
@@ -400,25 +370,14 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let frames = fit_frames(bundle, config);
-    let angles = config
-        .residual_turn_seed
-        .filter(|_| model.residual.is_some())
-        .map(|seed| turn_angles(seed, iteration, frames));
     let (loss, grads) = loss_and_gradient(
         model,
         bundle,
-        frames,
+        fit_frames(bundle, config),
         config.window,
         extra,
-        angles.as_deref(),
     )?;
-    // Under turns the step's own rollout is not the model's: score the late
-    // frames (`--residual-keep late-frames`) on a rollout as it runs.
-    let late_loss = match angles {
-        Some(_) => late_frames_loss(&train_frame_losses(model, bundle, frames)?),
-        None => late_frames_loss(&grads.frame_losses),
-    };
+    let late_loss = late_frames_loss(&grads.frame_losses);
     let mut all_grads = to_param_set(&grads.patches)?;
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();

@@ -53,15 +53,6 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
-    /// Train the residual under random turns about the gravity axis: each
-    /// frame of each gradient step evaluates the network in a frame turned
-    /// by its own seeded angle (inputs turned, Δv turned back), so that it
-    /// learns corrections that hold whichever horizontal way the object
-    /// moves. Rollouts (evaluation, the late-frames score) use no turn.
-    /// Run records written before the option existed read as off.
-    #[arg(long)]
-    #[serde(default)]
-    pub residual_turns: bool,
     /// Substeps differentiated per frame (truncated BPTT).
     #[arg(long, default_value_t = 20)]
     pub window: usize,
@@ -182,7 +173,6 @@ fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig
         frames: None,
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
-        residual_turn_seed: options.residual_turns.then_some(options.seed),
     }
 }
 

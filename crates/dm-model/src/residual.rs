@@ -8,7 +8,6 @@ use dm_mpm::World;
 use dm_mpm::correction::CorrectionTape;
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Real, Vec3};
-pub use dm_residual::Turn;
 use dm_residual::features::history_of;
 use dm_residual::{FrameInputs, NetworkSize, Residual, ResidualKind, ResidualSpec};
 use serde::{Deserialize, Serialize};
@@ -87,33 +86,9 @@ pub fn apply_residual<T: Real>(
     starts: &[FrameStart],
     t: usize,
 ) -> Result<(Vec<[f64; 3]>, CorrectionTape), ModelError> {
-    apply_residual_turned(world, network, starts, t, None)
-}
-
-/// [`apply_residual`] with the network evaluated in a turned frame
-/// (training under random turns, `dm_residual::turn`).
-pub fn apply_residual_turned<T: Real>(
-    world: &mut World<T>,
-    network: &Residual,
-    starts: &[FrameStart],
-    t: usize,
-    turn: Option<&Turn>,
-) -> Result<(Vec<[f64; 3]>, CorrectionTape), ModelError> {
-    let inputs = frame_inputs(world, starts, t);
-    let dv = match turn {
-        Some(turn) => network.predict_turned(&inputs, turn)?,
-        None => network.predict(&inputs)?,
-    };
+    let dv = network.predict(&frame_inputs(world, starts, t))?;
     let tape = world.apply_velocity_correction(&dv)?;
     Ok((dv, tape))
-}
-
-/// A turn of the residual's frame by `angle` about the vertical (the
-/// gravity axis) through the centre of the simulation domain; `None`
-/// without gravity.
-pub fn gravity_turn(physics: &dm_mpm::PhysicsConfig, angle: f64) -> Option<Turn> {
-    let centre = physics.domain_origin.map(|o| o + 0.5 * physics.domain_size);
-    Turn::new(physics.gravity, centre, angle)
 }
 
 /// What [`residual_backward`] hands back besides the updated adjoint.
@@ -128,8 +103,7 @@ pub struct ResidualFrameGrads {
 /// Backward through one frame's correction and network. `carried` enters as
 /// the adjoint of the corrected state and leaves as that of the state after
 /// the substeps (x̃, ṽ; F and C pass through). `regulariser` is the
-/// weight of Σ_p |Δv_p|² in the loss (its gradient is added to Δv's);
-/// `turn` is the one the forward pass evaluated the network in.
+/// weight of Σ_p |Δv_p|² in the loss (its gradient is added to Δv's).
 pub fn residual_backward<T: Real>(
     network: &Residual,
     inputs: &FrameInputs,
@@ -137,7 +111,6 @@ pub fn residual_backward<T: Real>(
     tape: &CorrectionTape,
     carried: &mut ParticleGrads<T>,
     regulariser: f64,
-    turn: Option<&Turn>,
 ) -> Result<ResidualFrameGrads, ModelError> {
     let grad_dv: Vec<[f64; 3]> = tape
         .backward(carried)
@@ -145,10 +118,7 @@ pub fn residual_backward<T: Real>(
         .zip(dv)
         .map(|(g, d)| [0, 1, 2].map(|a| g[a].to_f64() + 2.0 * regulariser * d[a]))
         .collect();
-    let grads = match turn {
-        Some(turn) => network.vjp_turned(inputs, &grad_dv, turn)?,
-        None => network.vjp(inputs, &grad_dv)?,
-    };
+    let grads = network.vjp(inputs, &grad_dv)?;
     let to_t = |g: &[f64; 3]| Vec3::new(T::lit(g[0]), T::lit(g[1]), T::lit(g[2]));
     for (c, g) in carried.x.iter_mut().zip(&grads.x_tilde) {
         *c += to_t(g);

@@ -3,18 +3,16 @@
 //! gradient of a loss on the final state (plus the Δv regulariser) with
 //! respect to the network's weights, chained through `residual_backward`
 //! and `World::backward_frame` exactly as the fit chains them, against
-//! central finite differences; once as rollouts run, once with the network
-//! evaluated in a different turned frame each frame (training under random
-//! turns, `--residual-turns`).
+//! central finite differences.
 
 use candle_core::DType;
 use dm_model::residual::{
-    FrameStart, apply_residual_turned, frame_inputs, frame_start, gravity_turn, residual_backward,
+    FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Mat3, Vec3};
 use dm_mpm::{ActuatorConfig, ParticleMaterial, PhysicsConfig, World};
-use dm_residual::{NetworkSize, Residual, ResidualKind, ResidualSpec, Turn};
+use dm_residual::{NetworkSize, Residual, ResidualKind, ResidualSpec};
 
 /// Two frames of 6 substeps and two network passes compose many f64
 /// operations; round-off stays near 1e-9 relative, far below the issue's
@@ -103,15 +101,14 @@ fn probe(n: usize) -> ParticleGrads<f64> {
 }
 
 /// The loss: ⟨probe, final state⟩ + regulariser · Σ_t Σ_p |Δv|².
-fn forward(net: &Residual, probe: &ParticleGrads<f64>, turns: &[Option<Turn>; FRAMES]) -> f64 {
+fn forward(net: &Residual, probe: &ParticleGrads<f64>) -> f64 {
     let mut w = world();
     let mut starts: Vec<FrameStart> = Vec::new();
     let mut penalty = 0.0;
     for t in 0..FRAMES {
         starts.push(frame_start(&w));
         w.step_frame(&[], &[], &[]).expect("frame");
-        let (dv, _) =
-            apply_residual_turned(&mut w, net, &starts, t, turns[t].as_ref()).expect("residual");
+        let (dv, _) = apply_residual(&mut w, net, &starts, t).expect("residual");
         penalty += dv.iter().flatten().map(|c| c * c).sum::<f64>();
     }
     let s = w.state();
@@ -123,16 +120,6 @@ fn forward(net: &Residual, probe: &ParticleGrads<f64>, turns: &[Option<Turn>; FR
 
 #[test]
 fn issue4_residual_gradient_through_the_physics_matches_finite_differences() {
-    check_weights_gradient(&[None, None]);
-}
-
-#[test]
-fn issue4_turned_residual_gradient_through_the_physics_matches_finite_differences() {
-    let physics = world().config().clone();
-    check_weights_gradient(&[gravity_turn(&physics, 0.7), gravity_turn(&physics, -2.3)]);
-}
-
-fn check_weights_gradient(turns: &[Option<Turn>; FRAMES]) {
     let mut net = network(&world());
     let n = world().particle_count();
     let probe = probe(n);
@@ -147,7 +134,7 @@ fn check_weights_gradient(turns: &[Option<Turn>; FRAMES]) {
         starts.push(frame_start(&w));
         w.step_frame(&[], &[], &[]).expect("frame");
         corrections.push(
-            apply_residual_turned(&mut w, &net, &starts, t, turns[t].as_ref())
+            apply_residual(&mut w, &net, &starts, t)
                 .expect("residual")
                 .0,
         );
@@ -170,7 +157,6 @@ fn check_weights_gradient(turns: &[Option<Turn>; FRAMES]) {
             &correction_tape,
             &mut carried,
             REGULARISER,
-            turns[t].as_ref(),
         )
         .expect("residual backward");
         gradient
@@ -197,7 +183,7 @@ fn check_weights_gradient(turns: &[Option<Turn>; FRAMES]) {
             .map(|(b, d)| b + h * d)
             .collect();
         net.set_parameters(&moved).expect("parameters");
-        forward(&net, &probe, turns)
+        forward(&net, &probe)
     };
     let numeric = (at(FD_STEP) - at(-FD_STEP)) / (2.0 * FD_STEP);
     let rel = (analytic - numeric).abs() / analytic.abs().max(numeric.abs()).max(1e-8);

@@ -19,11 +19,9 @@
 
 pub mod features;
 pub mod network;
-pub mod turn;
 
 pub use features::{CHANNELS, FrameInputs, HISTORY};
 pub use network::{NetworkSize, Residual, ResidualGrads, ResidualKind, ResidualSpec};
-pub use turn::Turn;
 
 use std::path::PathBuf;
 

@@ -8,7 +8,6 @@
 
 use crate::ResidualError;
 use crate::features::{CHANNELS, FrameInputs};
-use crate::turn::Turn;
 use candle_core::{D, DType, Device, Tensor, Var};
 use candle_nn::{GroupNorm, Linear, Module};
 use serde::{Deserialize, Serialize};
@@ -462,37 +461,6 @@ impl Residual {
             x_tilde: input_grad(&x)?,
             v_tilde: input_grad(&v)?,
             x_start: input_grad(&s)?,
-        })
-    }
-
-    /// Δv of the network evaluated in the frame turned by `turn` (inputs
-    /// turned, output turned back): what training under random turns
-    /// (`crate::turn`) sees.
-    pub fn predict_turned(
-        &self,
-        inputs: &FrameInputs,
-        turn: &Turn,
-    ) -> Result<Vec<[f64; 3]>, ResidualError> {
-        let dv = self.predict(&turn.inputs(inputs))?;
-        Ok(turn.inverse().vectors(&dv))
-    }
-
-    /// [`Residual::vjp`] of [`Residual::predict_turned`]. With Δv =
-    /// Rᵀ·Δv′(R·inputs), ⟨Δv, ḡ⟩ = ⟨Δv′, R·ḡ⟩, and the input adjoints
-    /// turn back with Rᵀ (the pivot is a constant).
-    pub fn vjp_turned(
-        &self,
-        inputs: &FrameInputs,
-        grad_dv: &[[f64; 3]],
-        turn: &Turn,
-    ) -> Result<ResidualGrads, ResidualError> {
-        let grads = self.vjp(&turn.inputs(inputs), &turn.vectors(grad_dv))?;
-        let back = turn.inverse();
-        Ok(ResidualGrads {
-            parameters: grads.parameters,
-            x_tilde: back.vectors(&grads.x_tilde),
-            v_tilde: back.vectors(&grads.v_tilde),
-            x_start: back.vectors(&grads.x_start),
         })
     }
 

@@ -2,7 +2,7 @@
 //! against central finite differences in f64, save/load, determinism.
 
 use candle_core::DType;
-use dm_residual::{FrameInputs, HISTORY, NetworkSize, Residual, ResidualKind, ResidualSpec, Turn};
+use dm_residual::{FrameInputs, HISTORY, NetworkSize, Residual, ResidualKind, ResidualSpec};
 
 /// Relative error allowed between the candle VJP and central differences
 /// in f64: the network is smooth away from ReLU/max-pool kinks and stencil
@@ -97,25 +97,16 @@ fn shifted(points: &[[f64; 3]], direction: &[[f64; 3]], h: f64) -> Vec<[f64; 3]>
         .collect()
 }
 
-fn vjp_matches_finite_differences(kind: ResidualKind, turn: Option<Turn>) {
+fn vjp_matches_finite_differences(kind: ResidualKind) {
     let mut net = randomised(kind, DType::F64, 0.5);
     let inputs = cloud(40, 5);
     let n = inputs.particle_count();
     let mut r = stream(23);
     let mut directions = || -> Vec<[f64; 3]> { (0..n).map(|_| [r(), r(), r()]).collect() };
     let probe = directions();
-    let grads = match &turn {
-        Some(turn) => net.vjp_turned(&inputs, &probe, turn),
-        None => net.vjp(&inputs, &probe),
-    }
-    .expect("vjp");
-    let objective = |net: &Residual, inputs: &FrameInputs| {
-        let dv = match &turn {
-            Some(turn) => net.predict_turned(inputs, turn),
-            None => net.predict(inputs),
-        };
-        dot(&dv.expect("predict"), &probe)
-    };
+    let grads = net.vjp(&inputs, &probe).expect("vjp");
+    let objective =
+        |net: &Residual, inputs: &FrameInputs| dot(&net.predict(inputs).expect("predict"), &probe);
 
     for (name, field) in [("x_tilde", 0), ("v_tilde", 1), ("x_start", 2)] {
         let direction = directions();
@@ -161,37 +152,12 @@ fn vjp_matches_finite_differences(kind: ResidualKind, turn: Option<Turn>) {
 
 #[test]
 fn issue4_pgnd_vjp_matches_finite_differences() {
-    vjp_matches_finite_differences(ResidualKind::Pgnd, None);
-}
-
-#[test]
-fn issue4_turned_pgnd_vjp_matches_finite_differences() {
-    let turn = Turn::new([0.1, -0.2, 1.0], [0.05, -0.02, 0.0], 1.1).expect("turn");
-    vjp_matches_finite_differences(ResidualKind::Pgnd, Some(turn));
-}
-
-#[test]
-fn issue4_turn_is_a_rotation_about_its_axis_through_its_pivot() {
-    let quarter = Turn::new(
-        [0.0, 0.0, 2.0],
-        [1.0, 0.0, 0.0],
-        std::f64::consts::FRAC_PI_2,
-    )
-    .expect("turn");
-    let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|i| (a[i] - b[i]).abs() < 1e-12);
-    assert!(close(quarter.vector([1.0, 0.0, 0.0]), [0.0, 1.0, 0.0]));
-    assert!(close(quarter.vector([0.0, 0.0, 3.0]), [0.0, 0.0, 3.0]));
-    assert!(close(quarter.point([1.0, 0.0, 5.0]), [1.0, 0.0, 5.0]));
-    assert!(close(quarter.point([2.0, 0.0, 0.0]), [1.0, 1.0, 0.0]));
-    let v = [0.3, -1.2, 0.7];
-    assert!(close(quarter.inverse().vector(quarter.vector(v)), v));
-    assert!(Turn::new([0.0; 3], [0.0; 3], 1.0).is_none());
-    assert!(Turn::new([0.0, 0.0, 1.0], [0.0; 3], f64::NAN).is_none());
+    vjp_matches_finite_differences(ResidualKind::Pgnd);
 }
 
 #[test]
 fn issue4_mlp_vjp_matches_finite_differences() {
-    vjp_matches_finite_differences(ResidualKind::Mlp, None);
+    vjp_matches_finite_differences(ResidualKind::Mlp);
 }
 
 #[test]

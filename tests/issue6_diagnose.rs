@@ -34,6 +34,15 @@ fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
             .is_file()
     );
     assert!(hidden.track_after < hidden.track_before);
+    // The run record: diagnosis.json keeps the options it ran with.
+    let diagnosis: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("hidden/diagnosis/diagnosis.json"))
+            .expect("diagnosis.json"),
+    )
+    .expect("diagnosis.json parses");
+    let recorded: DiagnoseOptions =
+        serde_json::from_value(diagnosis["options"].clone()).expect("options record");
+    assert_eq!(recorded, options);
     // Every trial's per-frame error is kept as evidence, one entry per frame
     // (none for a trial that diverged).
     let trials: serde_json::Value = serde_json::from_str(

@@ -58,25 +58,32 @@ pub enum DiagnoseError {
     Output { path: PathBuf, problem: String },
 }
 
-/// Options of a diagnosis.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// Options of a diagnosis: `dm-diagnose`'s CLI and the run record saved
+/// as `options` in `diagnosis.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize, clap::Args)]
 pub struct DiagnoseOptions {
     /// Material Adam steps of the refit with the chosen effect in place
     /// (0: effect parameter only).
+    #[arg(long, default_value_t = DEFAULT_REFIT_ITERS)]
     pub refit_iters: usize,
-    /// Score threshold below which the cause is `none`.
+    /// Held-out score below which the cause is `none`.
+    #[arg(long = "threshold", value_name = "THRESHOLD", default_value_t = NONE_THRESHOLD)]
     pub none_threshold: f64,
     /// Score each candidate by a fit from the start with its best trial's
     /// effect in place (the fitted model's own `dm-fit` options, read from
     /// its `fit_report.json`), instead of the effect added on top of a
     /// fit that has absorbed part of it. One fit per candidate.
+    #[arg(long)]
     pub fit_candidates: bool,
 }
+
+/// Material steps of the refit with the named effect in place.
+pub const DEFAULT_REFIT_ITERS: usize = 2;
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
         Self {
-            refit_iters: 2,
+            refit_iters: DEFAULT_REFIT_ITERS,
             none_threshold: NONE_THRESHOLD,
             fit_candidates: false,
         }
@@ -138,6 +145,8 @@ pub struct Diagnosis {
     pub regions_test: Vec<analysis::RegionError>,
     pub truth: Option<TruthComparison>,
     pub refit: Option<RefitRecord>,
+    /// The run record: the options this diagnosis ran with.
+    pub options: DiagnoseOptions,
 }
 
 /// What the refit did.
@@ -487,6 +496,7 @@ pub fn diagnose(
         regions_test,
         truth: truth_cmp,
         refit,
+        options: options.clone(),
     };
     progress("plots and report", 0, 1);
     let plot_inputs = plots::PlotInputs {

@@ -4,7 +4,7 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_diagnose::{DiagnoseOptions, NONE_THRESHOLD, diagnose};
+use dm_diagnose::{DiagnoseOptions, diagnose};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
@@ -24,16 +24,8 @@ struct Cli {
     /// dm-synth's truth file: compare the named effect and its parameters.
     #[arg(long)]
     truth: Option<PathBuf>,
-    /// Material Adam steps of the refit with the effect in place.
-    #[arg(long, default_value_t = 2)]
-    refit_iters: usize,
-    /// Held-out score below which the cause is `none`.
-    #[arg(long, default_value_t = NONE_THRESHOLD)]
-    threshold: f64,
-    /// Score each candidate by a fit from the start with its effect in
-    /// place (the model's own dm-fit options; one fit per candidate).
-    #[arg(long)]
-    fit_candidates: bool,
+    #[command(flatten)]
+    options: DiagnoseOptions,
 }
 
 fn main() -> Result<()> {
@@ -51,17 +43,12 @@ fn main() -> Result<()> {
         }
         bar.set_position(done as u64);
     };
-    let options = DiagnoseOptions {
-        refit_iters: cli.refit_iters,
-        none_threshold: cli.threshold,
-        fit_candidates: cli.fit_candidates,
-    };
     let d = diagnose(
         &cli.model_dir,
         &cli.bundle,
         &cli.out,
         cli.truth.as_deref(),
-        &options,
+        &cli.options,
         &mut progress,
     )
     .with_context(|| {

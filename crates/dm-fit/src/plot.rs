@@ -5,17 +5,47 @@ use dm_view::ViewError;
 use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
 use image::RgbImage;
 
-/// Plots `losses` (one per iteration); dashed lines mark where each later
-/// stage starts (`stage_starts`, iteration indices). The residual stage
-/// and stage 3 change the objective (network regulariser, + L_rgb), so a
-/// step up at their start is not a divergence.
-pub fn loss_curve(losses: &[f64], stage_starts: &[usize]) -> Result<RgbImage, ViewError> {
-    line_chart(
-        &[ChartSeries {
+/// Plots `losses` (one per iteration) and `late_losses` (the same steps'
+/// L_dyn over the last 30 % of the training frames; NaN where absent);
+/// dashed lines mark where each later stage starts (`stage_starts`,
+/// iteration indices), and a dot marks `kept`, the iteration whose
+/// residual network the fit kept (`--residual-keep late-frames`; it may be
+/// one past the last iteration: the network after the last step). The
+/// residual stage and stage 3 change the objective (network regulariser,
+/// + L_rgb), so a step up at their start is not a divergence.
+pub fn loss_curve(
+    losses: &[f64],
+    late_losses: &[f64],
+    stage_starts: &[usize],
+    kept: Option<(usize, f64)>,
+) -> Result<RgbImage, ViewError> {
+    let kept_marker: Vec<f64> = match kept {
+        Some((at, value)) => (0..=at)
+            .map(|i| if i == at { value } else { f64::NAN })
+            .collect(),
+        None => Vec::new(),
+    };
+    let mut series = vec![
+        ChartSeries {
             values: losses,
             color: [200, 40, 40],
-            label: "",
-        }],
+            label: "all training frames",
+        },
+        ChartSeries {
+            values: late_losses,
+            color: [40, 90, 200],
+            label: "last 30 % of them",
+        },
+    ];
+    if kept.is_some() {
+        series.push(ChartSeries {
+            values: &kept_marker,
+            color: [20, 150, 60],
+            label: "kept residual network",
+        });
+    }
+    line_chart(
+        &series,
         &ChartOptions {
             scale: ValueScale::Log,
             markers: stage_starts.to_vec(),

@@ -495,7 +495,17 @@ fn fit_stages(
     if options.residual_iters > 0 && state.model.residual.is_some() {
         stage_starts.push(options.iters + options.stage2_iters + options.residual_iters);
     }
-    let png = crate::plot::loss_curve(&curve, &stage_starts)?;
+    let late: Vec<f64> = state
+        .history
+        .iter()
+        .map(|r| r.late_loss.unwrap_or(f64::NAN))
+        .collect();
+    let residual_start = options.iters + options.stage2_iters;
+    let kept = state
+        .kept_residual
+        .as_ref()
+        .map(|k| (residual_start + k.step, k.late_loss));
+    let png = crate::plot::loss_curve(&curve, &late, &stage_starts, kept)?;
     write_file_atomic(&out.join("loss_curve.png"), |temp| {
         png.save_with_format(temp, image::ImageFormat::Png)
             .map_err(|e| std::io::Error::other(e.to_string()))

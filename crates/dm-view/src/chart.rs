@@ -203,7 +203,7 @@ pub fn line_chart(
                 let color = RGBColor(s.color[0], s.color[1], s.color[2]);
                 for (k, run) in segments(s.values, scale).into_iter().enumerate() {
                     let drawn = if run.len() == 1 {
-                        chart.draw_series(std::iter::once(Circle::new(run[0], 2, color.filled())))
+                        chart.draw_series(std::iter::once(Circle::new(run[0], 4, color.filled())))
                     } else {
                         chart.draw_series(LineSeries::new(run, color.stroke_width(2)))
                     }

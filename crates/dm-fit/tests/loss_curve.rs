@@ -1,0 +1,38 @@
+//! The loss curve marks the residual network the fit kept (issue 4,
+//! `--residual-keep late-frames`), also when it is the network after the
+//! last step, one iteration past the recorded history.
+
+use dm_fit::plot::loss_curve;
+
+const KEPT_GREEN: [u8; 3] = [20, 150, 60];
+
+fn green_columns(image: &image::RgbImage) -> Vec<u32> {
+    let mut columns: Vec<u32> = image
+        .enumerate_pixels()
+        .filter(|(_, _, p)| p.0 == KEPT_GREEN)
+        .map(|(x, _, _)| x)
+        .collect();
+    columns.sort_unstable();
+    columns.dedup();
+    columns
+}
+
+#[test]
+fn issue4_loss_curve_marks_the_kept_residual_network() {
+    let losses: Vec<f64> = (0..10).map(|i| 1e-4 / (1.0 + i as f64)).collect();
+    let late: Vec<f64> = losses.iter().map(|l| 0.9 * l).collect();
+    let plain = loss_curve(&losses, &late, &[3, 5], None).expect("chart");
+    assert!(
+        green_columns(&plain).is_empty(),
+        "nothing is marked without a kept network"
+    );
+
+    let inside = loss_curve(&losses, &late, &[3, 5], Some((7, late[7]))).expect("chart");
+    let past_end = loss_curve(&losses, &late, &[3, 5], Some((10, 8e-6))).expect("chart");
+    let dot_inside = green_columns(&inside);
+    let dot_past = green_columns(&past_end);
+    // The legend's swatch is at the left; the rightmost green is the dot,
+    // and the one past the history sits right of the one at iteration 7.
+    assert!(!dot_inside.is_empty() && !dot_past.is_empty());
+    assert!(dot_past.last() > dot_inside.last());
+}

@@ -3,18 +3,12 @@
 //! last step, one iteration past the recorded history.
 
 use dm_fit::plot::loss_curve;
+use dm_view::chart::colour_columns;
 
 const KEPT_GREEN: [u8; 3] = [20, 150, 60];
 
 fn green_columns(image: &image::RgbImage) -> Vec<u32> {
-    let mut columns: Vec<u32> = image
-        .enumerate_pixels()
-        .filter(|(_, _, p)| p.0 == KEPT_GREEN)
-        .map(|(x, _, _)| x)
-        .collect();
-    columns.sort_unstable();
-    columns.dedup();
-    columns
+    colour_columns(image, KEPT_GREEN)
 }
 
 #[test]

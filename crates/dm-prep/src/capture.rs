@@ -430,7 +430,8 @@ mod tests {
 
     #[test]
     fn bad_calibrations_name_the_file_and_field() {
-        let cases: [(&str, Box<dyn Fn(&mut serde_json::Value)>); 4] = [
+        type Corruption = Box<dyn Fn(&mut serde_json::Value)>;
+        let cases: [(&str, Corruption); 4] = [
             (
                 "cameras[0].fx",
                 Box::new(|v| {

@@ -404,3 +404,137 @@ mod tests {
         assert_eq!(fit_floor(&points, 0), None);
     }
 }
+
+/// A clip to make into a capture: the video, its depth frames (or a depth
+/// network of the built-in `models_manifest/` from `models_dir`), and the
+/// options.
+#[derive(Clone, Copy, Debug)]
+pub struct ClipSource<'a> {
+    pub video: &'a Path,
+    pub depth_frames: Option<&'a Path>,
+    pub models_dir: &'a Path,
+    pub options: &'a MonocularOptions,
+}
+
+/// What [`prepare_clip_capture`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ClipCapture {
+    /// The capture was already made from the same clip, depth and options.
+    Cached,
+    /// The capture was (re)written.
+    Written {
+        frames: usize,
+        fps: f64,
+        floor: FloorPlane,
+    },
+}
+
+/// Makes `source` a one-camera capture at `capture`, unless `record_path`
+/// shows the capture there was made from the same clip and depth frames
+/// (size and modification time of each file) with the same options; a
+/// stale capture is replaced. `progress(done, total)` follows the depth.
+pub fn prepare_clip_capture(
+    source: &ClipSource<'_>,
+    capture: &Path,
+    record_path: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ClipCapture, MonocularError> {
+    let record = serde_json::json!({
+        "video": file_stamp_json(source.video)?,
+        "depth": source.depth_frames.map(dir_stamp_json).transpose()?,
+        "options": source.options,
+    });
+    let cached = capture.is_dir()
+        && std::fs::read_to_string(record_path)
+            .ok()
+            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+            .is_some_and(|old| old == record);
+    if cached {
+        return Ok(ClipCapture::Cached);
+    }
+    let written = write_clip_capture(source, capture, progress)?;
+    dm_bundle::write_json_atomic(record_path, &record)?;
+    Ok(written)
+}
+
+fn write_clip_capture(
+    source: &ClipSource<'_>,
+    capture: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ClipCapture, MonocularError> {
+    let video = source.video;
+    let (frames, video_fps) = crate::video::decode_video_with_fps(video)?;
+    let fps = source
+        .options
+        .fps
+        .or(video_fps)
+        .ok_or_else(|| MonocularError::Clip {
+            path: video.to_path_buf(),
+            problem: "the video does not state its frame rate; give --fps".into(),
+        })?;
+    let mut network;
+    let depth = match source.depth_frames {
+        Some(dir) => DepthSource::Frames(dir.to_path_buf()),
+        None => {
+            let manifest = crate::models::Manifest::builtin()?;
+            network =
+                crate::models::load_depth_network(&manifest, source.models_dir).map_err(|e| {
+                    MonocularError::Clip {
+                        path: video.to_path_buf(),
+                        problem: format!(
+                            "no depth frames given, so a monocular depth network is needed: {e}"
+                        ),
+                    }
+                })?;
+            DepthSource::Network(&mut network)
+        }
+    };
+    if capture.exists() {
+        std::fs::remove_dir_all(capture)
+            .map_err(|e| BundleError::io(capture, "removing the stale capture", &e))?;
+    }
+    if let Some(parent) = capture.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| BundleError::io(parent, "creating", &e))?;
+    }
+    let (_, floor) = write_monocular_capture(
+        video,
+        &frames,
+        fps,
+        depth,
+        source.options,
+        capture,
+        progress,
+    )?;
+    Ok(ClipCapture::Written {
+        frames: frames.len(),
+        fps,
+        floor,
+    })
+}
+
+/// Size and modification time of `path` (what the capture cache compares).
+fn file_stamp_json(path: &Path) -> Result<serde_json::Value, BundleError> {
+    let (bytes, modified_ns) = crate::stages::file_stamp(path)?;
+    Ok(serde_json::json!({
+        "path": path.display().to_string(),
+        "bytes": bytes,
+        "modified_ns": modified_ns.to_string(),
+    }))
+}
+
+/// The stamps of every file in `dir`, sorted by name (depth frames edited
+/// in place rebuild the capture).
+fn dir_stamp_json(dir: &Path) -> Result<serde_json::Value, BundleError> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| BundleError::io(dir, "reading", &e))?
+        .map(|entry| entry.map(|e| e.path()))
+        .collect::<std::io::Result<_>>()
+        .map_err(|e| BundleError::io(dir, "reading", &e))?;
+    files.sort();
+    Ok(serde_json::Value::Array(
+        files
+            .iter()
+            .map(|f| file_stamp_json(f))
+            .collect::<Result<_, _>>()?,
+    ))
+}

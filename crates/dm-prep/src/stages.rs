@@ -282,6 +282,10 @@ pub fn file_stamp(path: &Path) -> Result<(u64, u128), BundleError> {
     Ok((meta.len(), modified_ns))
 }
 
+/// Frame 0 lifted to the world: the object's coloured points, and per
+/// camera its depth (metres, row-major), object mask and hand mask.
+type FirstFrameCloud = (ColoredPoints, Vec<Vec<f32>>, Vec<GrayImage>, Vec<GrayImage>);
+
 /// A capture being prepared, with its work directory.
 #[derive(Debug)]
 pub struct Prep {
@@ -755,10 +759,8 @@ impl Prep {
     }
 
     /// Every frame-0 object pixel of every camera lifted to the world, with
-    /// its colour.
-    fn first_frame_cloud(
-        &self,
-    ) -> Result<(ColoredPoints, Vec<Vec<f32>>, Vec<GrayImage>, Vec<GrayImage>), PrepError> {
+    /// its colour; also each camera's frame-0 depth and object and hand masks.
+    fn first_frame_cloud(&self) -> Result<FirstFrameCloud, PrepError> {
         let mut cloud = ColoredPoints::default();
         let (mut depths, mut objects, mut hands) = (Vec::new(), Vec::new(), Vec::new());
         for c in 0..self.cameras.len() {

@@ -234,6 +234,20 @@ pub fn line_chart(
         .ok_or_else(|| ViewError::Chart("chart buffer has the wrong size".into()))
 }
 
+/// The x positions (pixel columns, ascending, once each) where `image` has
+/// a pixel of exactly `color`: what a chart drew in a series' colour, for
+/// checks of a chart's content.
+pub fn colour_columns(image: &RgbImage, color: [u8; 3]) -> Vec<u32> {
+    let mut columns: Vec<u32> = image
+        .enumerate_pixels()
+        .filter(|(_, _, p)| p.0 == color)
+        .map(|(x, _, _)| x)
+        .collect();
+    columns.sort_unstable();
+    columns.dedup();
+    columns
+}
+
 /// A tick value in at most 4 decimals (3 significant digits in
 /// scientific notation outside 1e-3..1e4, so close log ticks differ),
 /// never "-0".

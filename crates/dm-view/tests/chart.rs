@@ -2,7 +2,7 @@
 //! panic on empty, flat or non-positive (log scale) input, and the bundled
 //! font draws its text.
 
-use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
+use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, colour_columns, line_chart};
 
 const RED: [u8; 3] = [200, 40, 40];
 
@@ -19,14 +19,7 @@ fn coloured_columns(values: &[f64], scale: ValueScale) -> Vec<u32> {
         },
     )
     .expect("chart");
-    let mut columns: Vec<u32> = chart
-        .enumerate_pixels()
-        .filter(|(_, _, p)| p.0 == RED)
-        .map(|(x, _, _)| x)
-        .collect();
-    columns.sort_unstable();
-    columns.dedup();
-    columns
+    colour_columns(&chart, RED)
 }
 
 #[test]

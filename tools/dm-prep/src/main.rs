@@ -15,13 +15,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use dm_prep::models::{Manifest, VerifyStatus, default_models_dir, load_depth_network, verify_dir};
-use dm_prep::monocular::{DepthSource, MonocularOptions, write_monocular_capture};
+use dm_prep::models::{Manifest, VerifyStatus, default_models_dir, verify_dir};
+use dm_prep::monocular::{ClipCapture, ClipSource, MonocularOptions, prepare_clip_capture};
 use dm_prep::phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
 use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use dm_prep::score::{ScoreFrame, score_tracks_in};
 use dm_prep::stages::{Prep, PrepOptions, SegmentModel, Stage, StageOutcome, TrackModel};
-use dm_prep::video::decode_video_with_fps;
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser, Debug)]
@@ -443,35 +442,9 @@ fn prior_command(args: &PriorArgs) -> Result<()> {
             args.frame.display()
         )
     })?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let pose_json = |pose: &nalgebra::Isometry3<f64>| {
-        let rotation = pose.rotation.to_rotation_matrix();
-        serde_json::json!({
-            "rotation": (0..3).map(|r| (0..3).map(|c| rotation[(r, c)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
-            "translation_m": pose.translation.vector.iter().copied().collect::<Vec<_>>(),
-        })
-    };
-    let report = serde_json::json!({
-        "mesh": args.mesh.display().to_string(),
-        "pnp_mesh_to_camera": pose_json(&result.pnp.mesh_to_camera),
-        "pnp_view": result.pnp.view,
-        "pnp_matches": result.pnp.matches,
-        "pnp_inliers": result.pnp.inliers,
-        "icp_mesh_to_camera": pose_json(&result.fit.rigid_pose),
-        "arap_mesh_to_camera": pose_json(&result.fit.deformed_pose),
-        "median_distance_before_m": result.fit.median_distance_before_m,
-        "median_distance_after_m": result.fit.median_distance_after_m,
-    });
-    let vertices = ndarray::Array2::from_shape_fn((result.fit.vertices.len(), 3), |(i, k)| {
-        result.fit.vertices[i][k] as f32
-    });
-    let triangles = ndarray::Array2::from_shape_fn((result.triangles.len(), 3), |(i, k)| {
-        result.triangles[i][k] as i32
-    });
-    dm_bundle::write_npy_file(&args.out.join("prior_vertices.npy"), &vertices)?;
-    dm_bundle::write_npy_file(&args.out.join("prior_triangles.npy"), &triangles)?;
-    dm_bundle::write_json_atomic(&args.out.join("prior.json"), &report)?;
+    result
+        .write(&args.out, &args.mesh)
+        .with_context(|| format!("writing the shape prior into {}", args.out.display()))?;
     println!(
         "wrote {}: PnP {} inliers of {} matches (view {}), median point distance {:.2} mm -> {:.2} mm",
         args.out.display(),
@@ -625,23 +598,34 @@ fn video_command(args: &VideoArgs) -> Result<()> {
     };
     let work = sibling_with_suffix(out, ".work");
     let capture = work.join("capture");
-    let record_path = work.join("capture.json");
-    // The capture is rebuilt only when the clip, its depth or the options change.
-    let record = serde_json::json!({
-        "video": file_stamp(video)?,
-        "depth": args.depth.as_deref().map(dir_stamp).transpose()?,
-        "options": options,
-    });
-    let cached = capture.is_dir()
-        && std::fs::read_to_string(&record_path)
-            .ok()
-            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
-            .is_some_and(|old| old == record);
-    if cached {
-        println!("capture {}: up to date (cached)", capture.display());
-    } else {
-        write_capture(args, video, &options, &capture)?;
-        dm_bundle::write_json_atomic(&record_path, &record)?;
+    let models_dir = args
+        .models
+        .models
+        .clone()
+        .unwrap_or_else(default_models_dir);
+    let source = ClipSource {
+        video,
+        depth_frames: args.depth.as_deref(),
+        models_dir: &models_dir,
+        options: &options,
+    };
+    let bar = progress_bar()?;
+    bar.set_message("depth");
+    let mut progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let built = prepare_clip_capture(&source, &capture, &work.join("capture.json"), &mut progress)
+        .with_context(|| format!("preparing {} into {}", video.display(), capture.display()))?;
+    bar.finish_and_clear();
+    match built {
+        ClipCapture::Cached => println!("capture {}: up to date (cached)", capture.display()),
+        ClipCapture::Written { frames, fps, floor } => println!(
+            "capture {}: {frames} frames at {fps} fps; floor {:.3} m below the camera ({:.0} % of frame 0 on it)",
+            capture.display(),
+            floor.offset_m,
+            100.0 * floor.inlier_fraction
+        ),
     }
     all_command(&AllArgs {
         stage: StageArgs {
@@ -654,92 +638,6 @@ fn video_command(args: &VideoArgs) -> Result<()> {
         },
         overwrite: args.overwrite,
     })
-}
-
-/// The clip as a one-camera capture at `capture` (replacing a stale one).
-fn write_capture(
-    args: &VideoArgs,
-    video: &Path,
-    options: &MonocularOptions,
-    capture: &Path,
-) -> Result<()> {
-    let (frames, video_fps) =
-        decode_video_with_fps(video).with_context(|| format!("decoding {}", video.display()))?;
-    let fps = options.fps.or(video_fps).with_context(|| {
-        format!(
-            "{}: the video does not state its frame rate; give --fps",
-            video.display()
-        )
-    })?;
-    let mut network;
-    let depth = match &args.depth {
-        Some(dir) => DepthSource::Frames(dir.clone()),
-        None => {
-            let manifest = load_manifest(None)?;
-            let models_dir = args
-                .models
-                .models
-                .clone()
-                .unwrap_or_else(default_models_dir);
-            network = load_depth_network(&manifest, &models_dir).with_context(|| {
-                format!(
-                    "{}: no --depth frames, so a monocular depth network is needed",
-                    video.display()
-                )
-            })?;
-            DepthSource::Network(&mut network)
-        }
-    };
-    if capture.exists() {
-        std::fs::remove_dir_all(capture)
-            .with_context(|| format!("removing the stale capture {}", capture.display()))?;
-    }
-    if let Some(parent) = capture.parent() {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("creating {}", parent.display()))?;
-    }
-    let bar = progress_bar()?;
-    bar.set_message("depth");
-    let mut progress = |done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    };
-    let (_, floor) =
-        write_monocular_capture(video, &frames, fps, depth, options, capture, &mut progress)
-            .with_context(|| format!("preparing {} into {}", video.display(), capture.display()))?;
-    bar.finish_and_clear();
-    println!(
-        "capture {}: {} frames at {fps} fps; floor {:.3} m below the camera ({:.0} % of frame 0 on it)",
-        capture.display(),
-        frames.len(),
-        floor.offset_m,
-        100.0 * floor.inlier_fraction
-    );
-    Ok(())
-}
-
-/// Size and modification time of `path` (what the capture cache compares).
-fn file_stamp(path: &Path) -> Result<serde_json::Value> {
-    let (bytes, modified_ns) = dm_prep::stages::file_stamp(path)?;
-    Ok(serde_json::json!({
-        "path": path.display().to_string(),
-        "bytes": bytes,
-        "modified_ns": modified_ns.to_string(),
-    }))
-}
-
-/// The stamps of every file in `dir`, sorted by name (depth frames edited
-/// in place rebuild the capture).
-fn dir_stamp(dir: &Path) -> Result<serde_json::Value> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .map(|entry| entry.map(|e| e.path()))
-        .collect::<std::io::Result<_>>()
-        .with_context(|| format!("reading {}", dir.display()))?;
-    files.sort();
-    Ok(serde_json::Value::Array(
-        files.iter().map(|f| file_stamp(f)).collect::<Result<_>>()?,
-    ))
 }
 
 fn sibling_with_suffix(path: &Path, suffix: &str) -> PathBuf {

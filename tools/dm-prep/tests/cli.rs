@@ -182,6 +182,23 @@ fn issue8_monocular_clip_runs_through_the_fixture_depth_network() {
         "{stdout}"
     );
     assert!(out.join("bundle.json").is_file(), "{stdout}");
+
+    // The same clip, depth and options again: the capture is reused.
+    let clip = dir.path().join("clip.mp4");
+    let models = fixtures().join("models");
+    let again = dm_prep(&[
+        clip.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--models".as_ref(),
+        models.as_os_str(),
+        "--camera-height-m".as_ref(),
+        "0.6".as_ref(),
+        "--overwrite".as_ref(),
+    ]);
+    let stdout = String::from_utf8_lossy(&again.stdout);
+    assert!(again.status.success(), "{stdout}");
+    assert!(stdout.contains("up to date (cached)"), "{stdout}");
 }
 
 /// A bright checkered block (what the fixture SAM 2 decoder segments: a

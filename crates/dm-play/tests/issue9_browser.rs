@@ -278,7 +278,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         })
         .sum();
     eprintln!("hand 1 rose {hand_lift:.3} m, centroid {lift:.3} m");
-    if !(lift > 0.01) {
+    if lift.is_nan() || lift <= 0.01 {
         return Err(format!(
             "the object did not follow the keys: centroid rose {lift} m, state {moved}"
         ));
@@ -309,7 +309,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     .await;
     let fps: f64 = fps_text().await.and_then(|t| t.parse().ok()).unwrap_or(0.0);
     eprintln!("page fps {fps}");
-    if !(fps > 0.0) {
+    if fps.is_nan() || fps <= 0.0 {
         return Err(format!("fps counter shows {fps}"));
     }
 

@@ -133,8 +133,14 @@ fn write_clip(path: &Path) {
 /// Runs `dm-prep CLIP --out BUNDLE --models MODELS EXTRA..` on a fresh clip
 /// in `dir`; returns the output and the bundle path.
 fn prepare_clip(dir: &Path, models: &Path, extra: &[&str]) -> (Output, PathBuf) {
+    write_clip(&dir.join("clip.mp4"));
+    rerun_clip(dir, models, extra)
+}
+
+/// `dm-prep DIR/clip.mp4 --out DIR/bundle --models MODELS EXTRA…` on the
+/// clip already written.
+fn rerun_clip(dir: &Path, models: &Path, extra: &[&str]) -> (Output, PathBuf) {
     let clip = dir.join("clip.mp4");
-    write_clip(&clip);
     let out = dir.join("bundle");
     let mut args = vec![
         clip.as_os_str(),
@@ -184,18 +190,11 @@ fn issue8_monocular_clip_runs_through_the_fixture_depth_network() {
     assert!(out.join("bundle.json").is_file(), "{stdout}");
 
     // The same clip, depth and options again: the capture is reused.
-    let clip = dir.path().join("clip.mp4");
-    let models = fixtures().join("models");
-    let again = dm_prep(&[
-        clip.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-        "--models".as_ref(),
-        models.as_os_str(),
-        "--camera-height-m".as_ref(),
-        "0.6".as_ref(),
-        "--overwrite".as_ref(),
-    ]);
+    let (again, _) = rerun_clip(
+        dir.path(),
+        &fixtures().join("models"),
+        &["--camera-height-m", "0.6", "--overwrite"],
+    );
     let stdout = String::from_utf8_lossy(&again.stdout);
     assert!(again.status.success(), "{stdout}");
     assert!(stdout.contains("up to date (cached)"), "{stdout}");

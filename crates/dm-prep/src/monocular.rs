@@ -334,77 +334,6 @@ pub fn write_monocular_capture(
     Ok((calibration, floor))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A camera 0.5 m above a floor, looking down at 40°, with 30 % of the
-    /// points on a box standing on the floor: the plane comes back within
-    /// 0.1° and 1 mm, and the world frame puts the floor at z = 0.
-    #[test]
-    fn the_floor_is_found_under_clutter_and_sets_the_world_frame() {
-        let tilt = 40f64.to_radians();
-        // Camera frame: the floor normal points up (−y) and towards the camera (−z).
-        let normal = Vector3::new(0.0, -tilt.cos(), -tilt.sin());
-        let height = 0.5;
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut points = Vec::new();
-        while points.len() < 4000 {
-            let p = Vector3::new(
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.4..0.4),
-                rng.random_range(0.3..1.5),
-            );
-            // Move p along the viewing ray onto the floor: normal·(s p) + height = 0.
-            let s = -height / normal.dot(&p);
-            if s <= 0.0 {
-                continue;
-            }
-            let on_floor = p * s + Vector3::new(0.0, 0.0, rng.random_range(-0.001..0.001));
-            if points.len() % 10 < 3 {
-                // A box 8 cm tall above this floor point.
-                points.push((on_floor + normal * rng.random_range(0.01..0.08)).into());
-            } else {
-                points.push(on_floor.into());
-            }
-        }
-        let floor = fit_floor(&points, 7).expect("a floor");
-        let angle = Vector3::from(floor.normal).angle(&normal).to_degrees();
-        assert!(angle < 0.1, "normal off by {angle}°");
-        assert!(
-            (floor.offset_m - height).abs() < 1e-3,
-            "height {}",
-            floor.offset_m
-        );
-        assert!(
-            (0.6..0.8).contains(&floor.inlier_fraction),
-            "{}",
-            floor.inlier_fraction
-        );
-        let world_to_camera = world_to_camera_from_floor(&floor);
-        // Camera-to-world of a floor point has z ≈ 0; the camera sits at (0, 0, height).
-        let m = nalgebra::Matrix4::from_fn(|r, c| world_to_camera[r][c]);
-        let inverse = m.try_inverse().expect("rigid");
-        let floor_point = points[5];
-        let world = inverse.transform_point(&nalgebra::Point3::from(floor_point));
-        assert!(world.z.abs() < 2e-3, "floor point at z {}", world.z);
-        let eye = inverse.transform_point(&nalgebra::Point3::origin());
-        assert!(
-            (eye.coords - Vector3::new(0.0, 0.0, height)).norm() < 1e-3,
-            "{eye}"
-        );
-    }
-
-    #[test]
-    fn no_plane_in_scattered_points_is_none() {
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let points: Vec<[f64; 3]> = (0..2000)
-            .map(|_| [0; 3].map(|_| rng.random_range(0.0..1.0)))
-            .collect();
-        assert_eq!(fit_floor(&points, 0), None);
-    }
-}
-
 /// A clip to make into a capture: the video, its depth frames (or a depth
 /// network of the built-in `models_manifest/` from `models_dir`), and the
 /// options.
@@ -537,4 +466,75 @@ fn dir_stamp_json(dir: &Path) -> Result<serde_json::Value, BundleError> {
             .map(|f| file_stamp_json(f))
             .collect::<Result<_, _>>()?,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera 0.5 m above a floor, looking down at 40°, with 30 % of the
+    /// points on a box standing on the floor: the plane comes back within
+    /// 0.1° and 1 mm, and the world frame puts the floor at z = 0.
+    #[test]
+    fn the_floor_is_found_under_clutter_and_sets_the_world_frame() {
+        let tilt = 40f64.to_radians();
+        // Camera frame: the floor normal points up (−y) and towards the camera (−z).
+        let normal = Vector3::new(0.0, -tilt.cos(), -tilt.sin());
+        let height = 0.5;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut points = Vec::new();
+        while points.len() < 4000 {
+            let p = Vector3::new(
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-0.4..0.4),
+                rng.random_range(0.3..1.5),
+            );
+            // Move p along the viewing ray onto the floor: normal·(s p) + height = 0.
+            let s = -height / normal.dot(&p);
+            if s <= 0.0 {
+                continue;
+            }
+            let on_floor = p * s + Vector3::new(0.0, 0.0, rng.random_range(-0.001..0.001));
+            if points.len() % 10 < 3 {
+                // A box 8 cm tall above this floor point.
+                points.push((on_floor + normal * rng.random_range(0.01..0.08)).into());
+            } else {
+                points.push(on_floor.into());
+            }
+        }
+        let floor = fit_floor(&points, 7).expect("a floor");
+        let angle = Vector3::from(floor.normal).angle(&normal).to_degrees();
+        assert!(angle < 0.1, "normal off by {angle}°");
+        assert!(
+            (floor.offset_m - height).abs() < 1e-3,
+            "height {}",
+            floor.offset_m
+        );
+        assert!(
+            (0.6..0.8).contains(&floor.inlier_fraction),
+            "{}",
+            floor.inlier_fraction
+        );
+        let world_to_camera = world_to_camera_from_floor(&floor);
+        // Camera-to-world of a floor point has z ≈ 0; the camera sits at (0, 0, height).
+        let m = nalgebra::Matrix4::from_fn(|r, c| world_to_camera[r][c]);
+        let inverse = m.try_inverse().expect("rigid");
+        let floor_point = points[5];
+        let world = inverse.transform_point(&nalgebra::Point3::from(floor_point));
+        assert!(world.z.abs() < 2e-3, "floor point at z {}", world.z);
+        let eye = inverse.transform_point(&nalgebra::Point3::origin());
+        assert!(
+            (eye.coords - Vector3::new(0.0, 0.0, height)).norm() < 1e-3,
+            "{eye}"
+        );
+    }
+
+    #[test]
+    fn no_plane_in_scattered_points_is_none() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let points: Vec<[f64; 3]> = (0..2000)
+            .map(|_| [0; 3].map(|_| rng.random_range(0.0..1.0)))
+            .collect();
+        assert_eq!(fit_floor(&points, 0), None);
+    }
 }

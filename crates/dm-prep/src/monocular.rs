@@ -335,13 +335,13 @@ pub fn write_monocular_capture(
 }
 
 /// A clip to make into a capture: the video, its depth frames (or a depth
-/// network of the built-in `models_manifest/` from `models_dir`), and the
-/// options.
+/// network of the built-in `models_manifest/` from `models_dir`, by default
+/// the one the capture stages use), and the options.
 #[derive(Clone, Copy, Debug)]
 pub struct ClipSource<'a> {
     pub video: &'a Path,
     pub depth_frames: Option<&'a Path>,
-    pub models_dir: &'a Path,
+    pub models_dir: Option<&'a Path>,
     pub options: &'a MonocularOptions,
 }
 
@@ -406,15 +406,17 @@ fn write_clip_capture(
         Some(dir) => DepthSource::Frames(dir.to_path_buf()),
         None => {
             let manifest = crate::models::Manifest::builtin()?;
-            network =
-                crate::models::load_depth_network(&manifest, source.models_dir).map_err(|e| {
-                    MonocularError::Clip {
-                        path: video.to_path_buf(),
-                        problem: format!(
-                            "no depth frames given, so a monocular depth network is needed: {e}"
-                        ),
-                    }
-                })?;
+            let models_dir = source
+                .models_dir
+                .map_or_else(crate::models::default_models_dir, Path::to_path_buf);
+            network = crate::models::load_depth_network(&manifest, &models_dir).map_err(|e| {
+                MonocularError::Clip {
+                    path: video.to_path_buf(),
+                    problem: format!(
+                        "no depth frames given, so a monocular depth network is needed: {e}"
+                    ),
+                }
+            })?;
             DepthSource::Network(&mut network)
         }
     };

@@ -598,15 +598,10 @@ fn video_command(args: &VideoArgs) -> Result<()> {
     };
     let work = sibling_with_suffix(out, ".work");
     let capture = work.join("capture");
-    let models_dir = args
-        .models
-        .models
-        .clone()
-        .unwrap_or_else(default_models_dir);
     let source = ClipSource {
         video,
         depth_frames: args.depth.as_deref(),
-        models_dir: &models_dir,
+        models_dir: args.models.models.as_deref(),
         options: &options,
     };
     let bar = progress_bar()?;

@@ -2,7 +2,11 @@
 //! (issue 6): the evidence behind the "detectable range" of
 //! `dm_synth::EffectName::test_range`.
 //!
-//!     cargo run --release -p dm-diagnose --example effect_visibility -- OUT_DIR [SEED]
+//!     cargo run --release -p dm-diagnose --example effect_visibility -- OUT_DIR [SEED] [EFFECTS] [PRESETS]
+//!
+//! EFFECTS (optional) is a comma-separated list of `name:magnitude`, e.g.
+//! `viscous_damping:250,viscous_damping:1000`, run instead of the library;
+//! PRESETS (optional) a comma-separated list of presets, e.g. `rope,cloth`.
 //!
 //! For every preset, the same seed's truth simulation
 //! (`SynthConfig::diagnosis`: same particles, same action) runs without an
@@ -70,21 +74,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let out = PathBuf::from(
         args.first()
-            .ok_or("usage: effect_visibility OUT_DIR [SEED]")?,
+            .ok_or("usage: effect_visibility OUT_DIR [SEED] [name:magnitude,...] [preset,...]")?,
     );
     let seed: u64 = args.get(1).map_or(Ok(2000), |s| s.parse())?;
+    let effects: Vec<EffectSpec> = match args.get(2) {
+        Some(list) => list
+            .split(',')
+            .map(|s| s.parse::<EffectSpec>())
+            .collect::<Result<_, _>>()?,
+        None => EffectName::ALL
+            .into_iter()
+            .map(|name| EffectSpec {
+                name,
+                magnitude: name.test_range()[0],
+            })
+            .collect(),
+    };
     std::fs::create_dir_all(&out)?;
     let mut table = String::from(
         "| effect | magnitude | preset (action) | mean shift (mm) | 90th-percentile shift (mm) |\n|---|---:|---|---:|---:|\n",
     );
-    for preset in [Preset::Rope, Preset::Cloth, Preset::Toy] {
+    let presets: Vec<Preset> = match args.get(3) {
+        Some(list) => list
+            .split(',')
+            .map(|s| <Preset as clap::ValueEnum>::from_str(s, true))
+            .collect::<Result<_, _>>()?,
+        None => vec![Preset::Rope, Preset::Cloth, Preset::Toy],
+    };
+    for preset in presets {
         let null = truth(preset, seed, None);
         let frames = null.frames.len();
         let [a, b] = Split::default_for(frames).test;
         let action = SynthConfig::diagnosis(preset, seed).resolved_action();
-        for name in EffectName::ALL {
-            let [magnitude, _] = name.test_range();
-            let with = truth(preset, seed, Some(EffectSpec { name, magnitude }));
+        for &spec in &effects {
+            let (name, magnitude) = (spec.name, spec.magnitude);
+            let with = truth(preset, seed, Some(spec));
             let [mean, p90] = (a..b)
                 .map(|t| shift_mm(&null, &with, name, t))
                 .fold([0.0; 2], |acc, v| [acc[0] + v[0], acc[1] + v[1]])

@@ -30,10 +30,11 @@ pub struct Effects {
     /// Plastic yield: singular values of F are projected into
     /// [1/(1+y), 1+y], so deformation beyond y is permanent.
     pub plastic_yield: Option<f64>,
-    /// Viscous (strain-rate) damping, Pa·s: Kirchhoff stress
-    /// τ_v = η (C + Cᵀ), C ≈ ∇v the APIC affine matrix. Explicit, so
-    /// stable only for η ≲ ρ dx² / (6 dt) (≈ 40 Pa·s at the model's 32³
-    /// grid over a 0.5 m domain).
+    /// Viscous (strain-rate) damping η, Pa·s: Cauchy stress 2η sym(∇v),
+    /// solved implicitly on the grid each substep (`viscosity.rs`), so
+    /// stable at any η. (An explicit viscous stress would be stable only
+    /// for η ≲ ρ dx² / (6 dt), ≈ 40 Pa·s on the model's grid, where it
+    /// moves nothing visible.)
     pub viscosity: f64,
 }
 

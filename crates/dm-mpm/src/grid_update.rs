@@ -1,61 +1,112 @@
-//! Stage 3: momentum to velocity, gravity, grid damping, slip walls at the
+//! Stage 3: momentum to velocity, gravity, grid damping, the implicit
+//! viscous solve when η > 0 (`viscosity.rs`), then slip walls at the
 //! domain faces and the floor (with optional Coulomb friction).
 
 use crate::grid::Grid;
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
+use crate::viscosity::{ViscousSolver, viscosity_solve};
 use rayon::prelude::*;
 
-pub fn grid_update<T: Real>(k: &Consts<T>, grid: &mut Grid<T>) {
-    let res = k.res;
-    let wall = k.wall_cells;
+/// u = (P/m + dt g) γ of a node with lanes `[P, m]`; `None` for a node too
+/// light to divide by safely (treated as empty).
+#[inline(always)]
+pub(crate) fn node_velocity<T: Real>(k: &Consts<T>, lanes: &[T; 4]) -> Option<Vec3<T>> {
+    let m = lanes[3];
+    if m <= k.empty_node_mass {
+        return None;
+    }
+    let v = Vec3::new(lanes[0], lanes[1], lanes[2]) / m;
+    Some((v + k.gravity * k.dt) * k.grid_damping)
+}
+
+/// World position of node `idx`.
+#[inline(always)]
+pub(crate) fn node_position<T: Real>(k: &Consts<T>, idx: [usize; 3]) -> Vec3<T> {
+    k.origin
+        + Vec3::new(
+            T::from_index(idx[0]),
+            T::from_index(idx[1]),
+            T::from_index(idx[2]),
+        ) * k.dx
+}
+
+/// The slip walls and the floor applied to the velocity of node `idx`.
+#[inline(always)]
+pub(crate) fn apply_boundaries<T: Real>(k: &Consts<T>, idx: [usize; 3], mut v: Vec3<T>) -> Vec3<T> {
+    let (res, wall) = (k.res, k.wall_cells);
+    for a in 0..3 {
+        if (idx[a] < wall && v[a] < T::zero()) || (idx[a] + wall >= res && v[a] > T::zero()) {
+            v[a] = T::zero();
+        }
+    }
+    if let Some(floor) = &k.floor
+        && node_position(k, idx).dot(&floor.up) <= floor.limit
+    {
+        let vn = v.dot(&floor.up);
+        if vn < T::zero() {
+            let mut vt = v - floor.up * vn;
+            if floor.friction > T::zero() {
+                let speed = vt.norm();
+                let slow = floor.friction * (-vn);
+                vt = if speed > slow {
+                    vt * ((speed - slow) / speed)
+                } else {
+                    Vec3::zeros()
+                };
+            }
+            v = vt;
+        }
+    }
+    v
+}
+
+/// Runs `f(idx, node)` on every node, slab-parallel.
+fn for_each_node<T: Real>(grid: &mut Grid<T>, f: impl Fn([usize; 3], &mut T::Lane4) + Sync) {
+    let res = grid.res;
     grid.nodes
         .par_chunks_mut(res * res)
         .enumerate()
         .for_each(|(i, slab)| {
             for (jk, node) in slab.iter_mut().enumerate() {
-                let lanes = node.to_array();
-                let m = lanes[3];
-                if m <= k.empty_node_mass {
-                    // Too light to divide by safely: treat as empty.
-                    *node = T::Lane4::default();
-                    continue;
-                }
-                let idx = [i, jk / res, jk % res];
-                let mut v = Vec3::new(lanes[0], lanes[1], lanes[2]) / m;
-                v = (v + k.gravity * k.dt) * k.grid_damping;
-                for a in 0..3 {
-                    if (idx[a] < wall && v[a] < T::zero())
-                        || (idx[a] + wall >= res && v[a] > T::zero())
-                    {
-                        v[a] = T::zero();
-                    }
-                }
-                if let Some(floor) = &k.floor {
-                    let pos = k.origin
-                        + Vec3::new(
-                            T::lit(idx[0] as f64),
-                            T::lit(idx[1] as f64),
-                            T::lit(idx[2] as f64),
-                        ) * k.dx;
-                    if pos.dot(&floor.up) <= floor.limit {
-                        let vn = v.dot(&floor.up);
-                        if vn < T::zero() {
-                            let mut vt = v - floor.up * vn;
-                            if floor.friction > T::zero() {
-                                let speed = vt.norm();
-                                let slow = floor.friction * (-vn);
-                                vt = if speed > slow {
-                                    vt * ((speed - slow) / speed)
-                                } else {
-                                    Vec3::zeros()
-                                };
-                            }
-                            v = vt;
-                        }
-                    }
-                }
-                *node = T::Lane4::from_array([v.x, v.y, v.z, m]);
+                f([i, jk / res, jk % res], node);
             }
         });
+}
+
+/// The grid update; `viscous` holds the viscous solve's buffers (unused
+/// when η = 0).
+pub fn grid_update<T: Real>(k: &Consts<T>, grid: &mut Grid<T>, viscous: &mut ViscousSolver<T>) {
+    if k.viscosity == T::zero() {
+        for_each_node(grid, |idx, node| {
+            let lanes = node.to_array();
+            *node = match node_velocity(k, &lanes) {
+                Some(u) => {
+                    let v = apply_boundaries(k, idx, u);
+                    T::Lane4::from_array([v.x, v.y, v.z, lanes[3]])
+                }
+                None => T::Lane4::default(),
+            };
+        });
+        return;
+    }
+    node_velocities(k, grid);
+    viscosity_solve(k, grid, viscous);
+    for_each_node(grid, |idx, node| {
+        let lanes = node.to_array();
+        let v = apply_boundaries(k, idx, Vec3::new(lanes[0], lanes[1], lanes[2]));
+        *node = T::Lane4::from_array([v.x, v.y, v.z, lanes[3]]);
+    });
+}
+
+/// Lanes `[P, m]` become `[u, m]`, u the node velocity before the viscous
+/// solve and the boundaries (empty nodes zero).
+pub(crate) fn node_velocities<T: Real>(k: &Consts<T>, grid: &mut Grid<T>) {
+    for_each_node(grid, |_, node| {
+        let lanes = node.to_array();
+        *node = match node_velocity(k, &lanes) {
+            Some(u) => T::Lane4::from_array([u.x, u.y, u.z, lanes[3]]),
+            None => T::Lane4::default(),
+        };
+    });
 }

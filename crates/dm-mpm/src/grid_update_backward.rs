@@ -13,75 +13,170 @@
 //! ū ↦ Π_t ū + μ (t̂·ū) n + (μ v_n/|v_t|)(Π_t ū − t̂ (t̂·ū)) with
 //! Π_t = I − n nᵀ; sticking gives u = 0 and passes nothing back. The
 //! branch is taken from the forward values, like the projections'.
+//!
+//! With η > 0 the viscous solve sits between u_pre and the boundaries:
+//! the boundaries' adjoint is taken at its output, and its own adjoint
+//! (`viscosity_backward.rs`) turns that into ū_pre and a share of m̄.
 
 use crate::SimError;
 use crate::grid::Grid;
+use crate::grid_update::{node_position, node_velocities};
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
+use crate::viscosity::ViscousSolver;
 use rayon::prelude::*;
 
 /// Adjoint of the grid update. `pre` is the grid right after P2G
 /// (momentum, mass), `grad_u` the adjoint of the node velocities.
-/// Returns per node `[P̄_x, P̄_y, P̄_z, m̄]`.
+/// Writes per node `[P̄_x, P̄_y, P̄_z, m̄]` and returns the adjoint of the
+/// viscosity η (zero when η = 0).
 pub fn grid_update_backward<T: Real>(
     k: &Consts<T>,
     pre: &Grid<T>,
     grad_u: &[T::Lane4],
     grad_pre: &mut Vec<T::Lane4>,
-) -> Result<(), SimError> {
+    viscous: &mut ViscousSolver<T>,
+) -> Result<T, SimError> {
     let res = k.res;
-    let wall = k.wall_cells;
     grad_pre.clear();
     grad_pre.resize(pre.nodes.len(), T::Lane4::default());
-    grad_pre
+    if k.viscosity == T::zero() {
+        grad_pre
+            .par_chunks_mut(res * res)
+            .zip(pre.nodes.par_chunks(res * res))
+            .zip(grad_u.par_chunks(res * res))
+            .enumerate()
+            .for_each(|(i, ((out, slab), gslab))| {
+                for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
+                    let lanes = node.to_array();
+                    let m = lanes[3];
+                    if m <= k.empty_node_mass {
+                        continue;
+                    }
+                    let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
+                    let u = (momentum / m + k.gravity * k.dt) * k.grid_damping;
+                    let ga = g.to_array();
+                    let gu = boundaries_adjoint(
+                        k,
+                        [i, jk / res, jk % res],
+                        u,
+                        Vec3::new(ga[0], ga[1], ga[2]),
+                    );
+                    *o = velocity_adjoint(k, momentum, m, gu, T::zero());
+                }
+            });
+        return Ok(T::zero());
+    }
+    // u per node, then the viscous solve's v: recomputed, as the rest of
+    // the grid update's forward values are.
+    let mut velocities = std::mem::replace(&mut viscous.backward_grid, Grid::new(0));
+    velocities.res = res;
+    velocities.nodes.clone_from(&pre.nodes);
+    node_velocities(k, &mut velocities);
+    let solved = viscous.solve_grid(k, &velocities);
+    if solved {
+        let system = &viscous.system;
+        for (&g, v) in system.nodes.iter().zip(&viscous.v) {
+            velocities.nodes[g] = T::Lane4::from_array([v.x, v.y, v.z, pre.nodes[g].to_array()[3]]);
+        }
+    }
+    // Adjoint of the boundaries at v, per node.
+    let mut grad_v = std::mem::take(&mut viscous.backward_grad_v);
+    grad_v.clear();
+    grad_v.resize(pre.nodes.len(), Vec3::zeros());
+    grad_v
         .par_chunks_mut(res * res)
-        .zip(pre.nodes.par_chunks(res * res))
+        .zip(velocities.nodes.par_chunks(res * res))
         .zip(grad_u.par_chunks(res * res))
         .enumerate()
         .for_each(|(i, ((out, slab), gslab))| {
             for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
-                let lanes = node.to_array();
-                let m = lanes[3];
-                if m <= k.empty_node_mass {
-                    continue;
-                }
-                let idx = [i, jk / res, jk % res];
-                let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
-                let mut v = (momentum / m + k.gravity * k.dt) * k.grid_damping;
-                let mut wall_kept = [true; 3];
-                for a in 0..3 {
-                    if (idx[a] < wall && v[a] < T::zero())
-                        || (idx[a] + wall >= res && v[a] > T::zero())
-                    {
-                        v[a] = T::zero();
-                        wall_kept[a] = false;
-                    }
-                }
+                let a = node.to_array();
                 let ga = g.to_array();
-                let mut gv = Vec3::new(ga[0], ga[1], ga[2]);
-                if let Some(floor) = &k.floor {
-                    let pos = k.origin
-                        + Vec3::new(
-                            T::from_index(idx[0]),
-                            T::from_index(idx[1]),
-                            T::from_index(idx[2]),
-                        ) * k.dx;
-                    let vn = v.dot(&floor.up);
-                    if pos.dot(&floor.up) <= floor.limit && vn < T::zero() {
-                        gv = floor_adjoint(floor.up, floor.friction, v, vn, gv);
-                    }
-                }
-                for a in 0..3 {
-                    if !wall_kept[a] {
-                        gv[a] = T::zero();
-                    }
-                }
-                let gp = gv * (k.grid_damping / m);
-                let gm = -gv.dot(&momentum) * k.grid_damping / (m * m);
-                *o = T::Lane4::from_array([gp.x, gp.y, gp.z, gm]);
+                *o = boundaries_adjoint(
+                    k,
+                    [i, jk / res, jk % res],
+                    Vec3::new(a[0], a[1], a[2]),
+                    Vec3::new(ga[0], ga[1], ga[2]),
+                );
             }
         });
-    Ok(())
+    let mut grad_mass = std::mem::take(&mut viscous.backward_grad_mass);
+    grad_mass.clear();
+    grad_mass.resize(pre.nodes.len(), T::zero());
+    let mut grad_viscosity = T::zero();
+    if solved {
+        let gathered: Vec<Vec3<T>> = viscous.system.nodes.iter().map(|&g| grad_v[g]).collect();
+        let vjp = viscous.vjp(&gathered);
+        for ((&g, gu), gm) in viscous.system.nodes.iter().zip(&vjp.u).zip(&vjp.mass) {
+            grad_v[g] = *gu;
+            grad_mass[g] = *gm;
+        }
+        grad_viscosity = vjp.viscosity;
+    }
+    grad_pre
+        .par_iter_mut()
+        .zip(&pre.nodes)
+        .zip(grad_v.par_iter().zip(&grad_mass))
+        .for_each(|((o, node), (gu, gm))| {
+            let lanes = node.to_array();
+            let m = lanes[3];
+            if m > k.empty_node_mass {
+                let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
+                *o = velocity_adjoint(k, momentum, m, *gu, *gm);
+            }
+        });
+    viscous.backward_grid = velocities;
+    viscous.backward_grad_v = grad_v;
+    viscous.backward_grad_mass = grad_mass;
+    Ok(grad_viscosity)
+}
+
+/// `[P̄, m̄]` of u = (P/m + dt g) γ given ū, plus `extra_mass` (m̄ from the
+/// viscous solve).
+#[inline(always)]
+fn velocity_adjoint<T: Real>(
+    k: &Consts<T>,
+    momentum: Vec3<T>,
+    m: T,
+    gu: Vec3<T>,
+    extra_mass: T,
+) -> T::Lane4 {
+    let gp = gu * (k.grid_damping / m);
+    let gm = -gu.dot(&momentum) * k.grid_damping / (m * m) + extra_mass;
+    T::Lane4::from_array([gp.x, gp.y, gp.z, gm])
+}
+
+/// Adjoint of [`crate::grid_update::apply_boundaries`] at the velocity `v`
+/// it was applied to, given the adjoint `g` of its output.
+#[inline(always)]
+fn boundaries_adjoint<T: Real>(
+    k: &Consts<T>,
+    idx: [usize; 3],
+    mut v: Vec3<T>,
+    g: Vec3<T>,
+) -> Vec3<T> {
+    let (res, wall) = (k.res, k.wall_cells);
+    let mut wall_kept = [true; 3];
+    for a in 0..3 {
+        if (idx[a] < wall && v[a] < T::zero()) || (idx[a] + wall >= res && v[a] > T::zero()) {
+            v[a] = T::zero();
+            wall_kept[a] = false;
+        }
+    }
+    let mut gv = g;
+    if let Some(floor) = &k.floor {
+        let vn = v.dot(&floor.up);
+        if node_position(k, idx).dot(&floor.up) <= floor.limit && vn < T::zero() {
+            gv = floor_adjoint(floor.up, floor.friction, v, vn, gv);
+        }
+    }
+    for a in 0..3 {
+        if !wall_kept[a] {
+            gv[a] = T::zero();
+        }
+    }
+    gv
 }
 
 /// Adjoint of the floor's velocity map at a node moving into the floor

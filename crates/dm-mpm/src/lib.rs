@@ -27,6 +27,7 @@ pub mod stress;
 pub mod svd;
 pub mod svd_backward;
 pub mod tape;
+pub mod viscosity;
 pub mod world;
 
 pub use actuators::{ActuatorConfig, ActuatorMode};
@@ -57,3 +58,4 @@ pub mod grid_update_backward;
 pub mod p2g_backward;
 pub mod stress_backward;
 pub mod substep;
+pub mod viscosity_backward;

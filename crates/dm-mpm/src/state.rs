@@ -84,6 +84,8 @@ pub struct Consts<T> {
     pub drag_quadratic: T,
     /// Viscous damping η, Pa·s.
     pub viscosity: T,
+    /// Rest density ρ, kg/m³ (the viscous solve's cell volumes, Σm/(8ρ)).
+    pub density: T,
     /// Nodes lighter than this are empty.
     pub empty_node_mass: T,
 }
@@ -120,6 +122,7 @@ impl<T: Real> Consts<T> {
             drag_linear: T::lit(effects.air_drag_linear),
             drag_quadratic: T::lit(effects.air_drag_quadratic),
             viscosity: T::lit(effects.viscosity),
+            density: T::lit(config.density),
             empty_node_mass: T::lit(config.empty_node_mass_ratio * mean_particle_mass),
         }
     }

@@ -42,11 +42,7 @@ pub fn particle_impulse<T: Real>(
     let v = particles.v[p];
     let stress_scale = -k.dt * T::lit(4.0) * k.inv_dx * k.inv_dx * particles.volume[p];
     let c = &particles.c[p];
-    let mut affine = kirchhoff * stress_scale + c * mass;
-    if k.viscosity != T::zero() {
-        // Strain-rate damping: τ_v = η (C + Cᵀ).
-        affine += (c + c.transpose()) * (k.viscosity * stress_scale);
-    }
+    let affine = kirchhoff * stress_scale + c * mass;
     let mut accel = Vec3::zeros();
     if let Some(ext) = inputs.external_accel {
         accel += ext[p];

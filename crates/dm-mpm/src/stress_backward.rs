@@ -1,7 +1,7 @@
 //! Backward twin of `stress.rs`: the adjoint of the per-particle impulse
 //! `affine = s τ(F) + m C`, `momentum = m (v + dt a)` with
-//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag), plus
-//! the viscous term `s η (C + Cᵀ)` when η ≠ 0.
+//! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
+//! (Viscous damping is implicit, on the grid: `viscosity_backward.rs`.)
 
 use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
 use crate::real::{Mat3, Real, Vec3};
@@ -20,9 +20,9 @@ pub struct ImpulseGrads<T> {
     /// Adjoint of the external (actuator) acceleration.
     pub external_accel: Vec3<T>,
     /// This particle's share of the adjoints of the effect parameters
-    /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic), η (viscosity)]`;
-    /// a parameter's gradient is the sum over particles (issue 6).
-    pub effects: [T; 3],
+    /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic)]`; a parameter's
+    /// gradient is the sum over particles (issue 6).
+    pub effects: [T; 2],
 }
 
 /// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
@@ -57,14 +57,9 @@ pub fn particle_impulse_vjp<T: Real>(
     };
     let grad_accel = grad_momentum * (mass * k.dt);
     let mut grad_v = grad_momentum * mass;
-    // ∂a/∂k₁ = −v, ∂a/∂k₂ = −|v| v; ∂affine/∂η = s (C + Cᵀ).
+    // ∂a/∂k₁ = −v, ∂a/∂k₂ = −|v| v.
     let accel_along_v = grad_accel.dot(&v);
-    let c = &particles.c[p];
-    let effects = [
-        -accel_along_v,
-        -v.norm() * accel_along_v,
-        (c + c.transpose()).component_mul(grad_affine).sum() * stress_scale,
-    ];
+    let effects = [-accel_along_v, -v.norm() * accel_along_v];
     if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {
         let speed = v.norm();
         grad_v -= grad_accel * (k.drag_linear + k.drag_quadratic * speed);
@@ -72,10 +67,7 @@ pub fn particle_impulse_vjp<T: Real>(
             grad_v -= v * (k.drag_quadratic * v.dot(&grad_accel) / speed);
         }
     }
-    let mut grad_c = grad_affine * mass;
-    if k.viscosity != T::zero() {
-        grad_c += (grad_affine + grad_affine.transpose()) * (k.viscosity * stress_scale);
-    }
+    let grad_c = grad_affine * mass;
     ImpulseGrads {
         v: grad_v,
         f: kg.f,

@@ -17,6 +17,7 @@ use crate::real::{Mat3, Real, Vec3};
 use crate::state::{Consts, Particles};
 use crate::stress::ImpulseInputs;
 use crate::stress_backward::particle_impulse_vjp;
+use crate::viscosity::ViscousSolver;
 use rayon::prelude::*;
 
 /// Buffers reused across substeps.
@@ -31,6 +32,7 @@ pub struct SubstepScratch<T: Real> {
     grad_u: NodeVelocityGrads<T>,
     grad_pre: Vec<T::Lane4>,
     gather_bar: Vec<GatherAdjoint<T>>,
+    viscous: ViscousSolver<T>,
 }
 
 impl<T: Real> SubstepScratch<T> {
@@ -43,6 +45,7 @@ impl<T: Real> SubstepScratch<T> {
             grad_u: Vec::new(),
             grad_pre: Vec::new(),
             gather_bar: Vec::new(),
+            viscous: ViscousSolver::default(),
         }
     }
 }
@@ -89,9 +92,11 @@ pub struct SubstepGrads<T> {
     pub lambda: Vec<T>,
     pub weights: Vec<[T; 3]>,
     pub external_accel: Vec<Vec3<T>>,
-    /// Per-particle shares of the effect-parameter adjoints (see
+    /// Per-particle shares of the drag-parameter adjoints (see
     /// `ImpulseGrads::effects`); sum over particles for the gradient.
-    pub effects: Vec<[T; 3]>,
+    pub effects: Vec<[T; 2]>,
+    /// Adjoint of the viscosity η (the grid's implicit viscous solve).
+    pub viscosity: T,
 }
 
 /// Accumulated wall time per solver stage (for benchmarks).
@@ -147,7 +152,7 @@ pub fn substep_forward<T: Real>(
         scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
     }
     laps.lap(|s| &mut s.p2g);
-    grid_update(k, &mut scratch.grid);
+    grid_update(k, &mut scratch.grid, &mut scratch.viscous);
     laps.lap(|s| &mut s.grid_update);
     let result = g2p(k, &scratch.grid, particles);
     laps.lap(|s| &mut s.g2p);
@@ -176,7 +181,8 @@ impl<T: Real> SubstepGrads<T> {
             lambda: vec![T::zero(); n],
             weights: vec![[T::zero(); 3]; n],
             external_accel: vec![Vec3::zeros(); n],
-            effects: vec![[T::zero(); 3]; n],
+            effects: vec![[T::zero(); 2]; n],
+            viscosity: T::zero(),
         }
     }
 
@@ -192,7 +198,7 @@ impl<T: Real> SubstepGrads<T> {
         self.lambda.resize(n, T::zero());
         self.weights.resize(n, [T::zero(); 3]);
         self.external_accel.resize(n, Vec3::zeros());
-        self.effects.resize(n, [T::zero(); 3]);
+        self.effects.resize(n, [T::zero(); 2]);
     }
 }
 
@@ -235,7 +241,7 @@ pub(crate) fn substep_backward_into<T: Real>(
     };
     let pre_grid = &scratch.grid_pre;
     scratch.grid.nodes.clone_from(&pre_grid.nodes);
-    grid_update(k, &mut scratch.grid);
+    grid_update(k, &mut scratch.grid, &mut scratch.viscous);
 
     grads.resize(n);
     g2p_backward(
@@ -249,7 +255,13 @@ pub(crate) fn substep_backward_into<T: Real>(
         &mut scratch.grad_u,
         &mut scratch.gather_bar,
     );
-    grid_update_backward(k, pre_grid, &scratch.grad_u, &mut scratch.grad_pre)?;
+    grads.viscosity = grid_update_backward(
+        k,
+        pre_grid,
+        &scratch.grad_u,
+        &mut scratch.grad_pre,
+        &mut scratch.viscous,
+    )?;
     let grad_pre = &scratch.grad_pre;
     let state = &mut grads.state;
     (

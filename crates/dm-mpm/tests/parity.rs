@@ -17,10 +17,12 @@ const F32_F64_VELOCITY_TOL: f64 = 1e-4;
 const REORDER_POSITION_TOL_M: f64 = 1e-12;
 
 /// Everything a frame can depend on: a MoCE material from patches with
-/// random logits and E, random initial velocities, four anchors moving.
-fn rich_scene<T: Real>() -> World<T> {
+/// random logits and E, random initial velocities, four anchors moving;
+/// with `viscosity` > 0 the grid's implicit viscous solve too.
+fn rich_scene<T: Real>(viscosity: f64) -> World<T> {
     let mut r = rng(31);
-    let config = floor_config();
+    let mut config = floor_config();
+    config.effects.viscosity = viscosity;
     let h = config.dx() / 2.0;
     let positions = jittered_lattice(&mut r, [-0.1, -0.06, 0.0], [0.1, 0.06, 0.08], h, 0.25);
     let patches = MaterialPatches::build(&positions, 12);
@@ -75,13 +77,13 @@ fn run_rich_scene<T: Real>(world: &mut World<T>, frames: usize) {
 
 type Snapshot<T> = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<Mat3<T>>);
 
-fn in_pool<T: Real>(threads: usize, frames: usize) -> Snapshot<T> {
+fn in_pool<T: Real>(threads: usize, frames: usize, viscosity: f64) -> Snapshot<T> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .expect("thread pool");
     pool.install(|| {
-        let mut world = rich_scene::<T>();
+        let mut world = rich_scene::<T>(viscosity);
         run_rich_scene(&mut world, frames);
         assert!(world.actuators().coupling_count() > 0, "anchors must grasp");
         (
@@ -106,20 +108,30 @@ fn assert_bitwise<T: Real>(a: &Snapshot<T>, b: &Snapshot<T>) {
 
 #[test]
 fn one_and_two_threads_give_bitwise_identical_results() {
-    let one = in_pool::<f32>(1, 4);
-    let two = in_pool::<f32>(2, 4);
-    assert_bitwise(&one, &two);
-    // The scene must have moved (else equality is trivial).
-    let moved = one.2.iter().any(|f| (f - Mat3::identity()).amax() > 1e-3);
-    assert!(moved, "no deformation");
-    let one = in_pool::<f64>(1, 2);
-    let three = in_pool::<f64>(3, 2);
-    assert_bitwise(&one, &three);
+    // η = 500 Pa·s adds the viscous solve's conjugate-gradient sums.
+    for viscosity in [0.0, 500.0] {
+        let one = in_pool::<f32>(1, 4, viscosity);
+        let two = in_pool::<f32>(2, 4, viscosity);
+        assert_bitwise(&one, &two);
+        // The scene must have moved (else equality is trivial).
+        let moved = one.2.iter().any(|f| (f - Mat3::identity()).amax() > 1e-3);
+        assert!(moved, "no deformation");
+        let one = in_pool::<f64>(1, 2, viscosity);
+        let three = in_pool::<f64>(3, 2, viscosity);
+        assert_bitwise(&one, &three);
+    }
 }
 
 #[test]
 fn f32_and_f64_worlds_agree_over_a_short_rollout() {
-    let config = floor_config();
+    for viscosity in [0.0, 500.0] {
+        f32_and_f64_agree(viscosity);
+    }
+}
+
+fn f32_and_f64_agree(viscosity: f64) {
+    let mut config = floor_config();
+    config.effects.viscosity = viscosity;
     let h = config.dx() / 2.0;
     let mut r = rng(32);
     let positions = jittered_lattice(&mut r, [-0.08, -0.08, 0.02], [0.08, 0.08, 0.18], h, 0.25);
@@ -153,8 +165,14 @@ fn f32_and_f64_worlds_agree_over_a_short_rollout() {
     };
     let dx = max_diff(&x32, &x64);
     let dv = max_diff(&v32, &v64);
-    assert!(dx < F32_F64_POSITION_TOL_M, "positions differ by {dx:e} m");
-    assert!(dv < F32_F64_VELOCITY_TOL, "velocities differ by {dv:e} m/s");
+    assert!(
+        dx < F32_F64_POSITION_TOL_M,
+        "η {viscosity}: positions differ by {dx:e} m"
+    );
+    assert!(
+        dv < F32_F64_VELOCITY_TOL,
+        "η {viscosity}: velocities differ by {dv:e} m/s"
+    );
     // The rollout includes the impact: the bottom has hit the floor.
     let fell = x64.iter().zip(&positions).all(|(x, p)| x[2] < p[2]);
     assert!(fell, "the block should be falling");

@@ -1,6 +1,6 @@
 //! Validation scenarios: whole simulations checked against analytical or
 //! physical expectations (conservation, free fall, resting contact,
-//! actuator tracking, divergence reporting, plasticity).
+//! actuator tracking, divergence reporting, plasticity, viscosity).
 
 mod common;
 
@@ -46,6 +46,16 @@ const SLIDE_RTOL: f64 = 0.05;
 /// Explicit Euler on v' = g - k v vs the exact exponential (k dt = 0.016;
 /// the per-step errors cancel towards terminal velocity, measured 6e-5).
 const DRAG_RTOL: f64 = 1e-3;
+
+/// A spinning block's late peak kinetic energy is the same with or without
+/// viscosity up to this share: strain-rate damping must not see rotation
+/// (measured 0.5571 vs 0.5571 of the start, 2e-4 apart; the soft block
+/// itself turns part of its spin into centrifugal stretch).
+const SPIN_ENERGY_RTOL: f64 = 0.01;
+/// A stretched block at η = 2000 Pa·s (50× the explicit limit) keeps less
+/// than this share of the peak kinetic energy the elastic one keeps
+/// (measured 7e-4 vs 0.32 of the start).
+const VISCOUS_PEAK_ENERGY_RATIO: f64 = 0.05;
 
 const SUBSTEPS_PER_FRAME: usize = 42;
 
@@ -627,6 +637,65 @@ fn plasticity_keeps_deformation_that_elasticity_recovers() {
     assert!(
         soft_yield > hard_yield + 0.03,
         "yield 0.02 block ends at {soft_yield}"
+    );
+}
+
+// ---------------------------------------------------------------- viscosity
+
+/// A free block (no gravity, no damping) started with the velocity field
+/// `v0`: its peak kinetic energy over frames 15–30, relative to the start.
+fn late_peak_kinetic_energy(viscosity: f64, v0: impl Fn(&[f64; 3]) -> [f64; 3]) -> f64 {
+    let mut config = free_space_config();
+    config.gravity = [0.0; 3];
+    config.effects.viscosity = viscosity;
+    let h = dx() / 2.0;
+    let positions = lattice([0.4, 0.45, 0.45], [0.6, 0.55, 0.55], h);
+    let mut world: World<f64> = block_world(
+        config,
+        &positions,
+        5e3,
+        0.3,
+        [1.0, 0.0, 0.0],
+        ActuatorConfig::default(),
+    );
+    let v: Vec<[f64; 3]> = positions.iter().map(v0).collect();
+    world.set_velocities(&v).expect("sizes match");
+    // Equal particle masses: Σ|v|² is the kinetic energy up to a factor.
+    let energy = |v: &[[f64; 3]]| {
+        v.iter()
+            .map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            .sum::<f64>()
+    };
+    let initial = energy(&v);
+    let mut peak = 0.0_f64;
+    for frame in 0..30 {
+        world.step_frame_free().expect("stable");
+        if frame >= 15 {
+            peak = peak.max(energy(&world.velocities()));
+        }
+    }
+    peak / initial
+}
+
+#[test]
+fn issue6_implicit_viscosity_damps_deformation_but_not_rigid_spin() {
+    // The elastic block's stretch oscillates (period ≈ 2L/c ≈ 6 frames);
+    // at η = 2000 Pa·s (dt η/(ρ dx²) ≈ 0.3 per substep, 50× what explicit
+    // viscous stress could take) the motion is overdamped within a frame.
+    let stretch = |p: &[f64; 3]| [5.0 * (p[0] - 0.5), 0.0, 0.0];
+    let elastic = late_peak_kinetic_energy(0.0, stretch);
+    let viscous = late_peak_kinetic_energy(2000.0, stretch);
+    assert!(
+        viscous < VISCOUS_PEAK_ENERGY_RATIO * elastic,
+        "stretch: peak kinetic energy {viscous} (viscous) vs {elastic} (elastic)"
+    );
+    // A rigid spin about x through the block's centre has no strain rate.
+    let spin = |p: &[f64; 3]| [0.0, -2.0 * (p[2] - 0.5), 2.0 * (p[1] - 0.5)];
+    let elastic = late_peak_kinetic_energy(0.0, spin);
+    let viscous = late_peak_kinetic_energy(2000.0, spin);
+    assert!(
+        (viscous - elastic).abs() < SPIN_ENERGY_RTOL * elastic,
+        "spin: peak kinetic energy {viscous} (viscous) vs {elastic} (elastic)"
     );
 }
 

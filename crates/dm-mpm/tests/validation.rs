@@ -581,6 +581,28 @@ fn a_diverging_configuration_reports_an_error() {
 
 // ---------------------------------------------------------------- plasticity
 
+/// A soft 0.2 × 0.1 × 0.1 m block (E = 5 kPa) centred in the unit cube,
+/// started with the velocity field `v0`: the world, its particles'
+/// positions and initial velocities.
+fn soft_block_in_motion<T: dm_mpm::Real>(
+    config: PhysicsConfig,
+    v0: impl Fn(&[f64; 3]) -> [f64; 3],
+) -> (World<T>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let h = dx() / 2.0;
+    let positions = lattice([0.4, 0.45, 0.45], [0.6, 0.55, 0.55], h);
+    let mut world: World<T> = block_world(
+        config,
+        &positions,
+        5e3,
+        0.3,
+        [1.0, 0.0, 0.0],
+        ActuatorConfig::default(),
+    );
+    let v: Vec<[f64; 3]> = positions.iter().map(v0).collect();
+    world.set_velocities(&v).expect("sizes match");
+    (world, positions, v)
+}
+
 /// x-extent of a free block stretched by an initial velocity field, after
 /// it settled (relative to its initial extent).
 fn extent_after_stretch(plastic_yield: Option<f64>) -> f64 {
@@ -592,22 +614,9 @@ fn extent_after_stretch(plastic_yield: Option<f64>) -> f64 {
         plastic_yield,
         ..Effects::default()
     };
-    let h = dx() / 2.0;
-    let positions = lattice([0.4, 0.45, 0.45], [0.6, 0.55, 0.55], h);
-    let mut world: World<f32> = block_world(
-        config,
-        &positions,
-        5e3,
-        0.3,
-        [1.0, 0.0, 0.0],
-        ActuatorConfig::default(),
-    );
     // v_x = 5 (x - 0.5): a fast stretch along x.
-    let v: Vec<[f64; 3]> = positions
-        .iter()
-        .map(|p| [5.0 * (p[0] - 0.5), 0.0, 0.0])
-        .collect();
-    world.set_velocities(&v).expect("sizes match");
+    let (mut world, positions, _) =
+        soft_block_in_motion::<f32>(config, |p| [5.0 * (p[0] - 0.5), 0.0, 0.0]);
     let initial = {
         let (lo, hi) = bounds(&positions);
         hi[0] - lo[0]
@@ -648,18 +657,7 @@ fn late_peak_kinetic_energy(viscosity: f64, v0: impl Fn(&[f64; 3]) -> [f64; 3]) 
     let mut config = free_space_config();
     config.gravity = [0.0; 3];
     config.effects.viscosity = viscosity;
-    let h = dx() / 2.0;
-    let positions = lattice([0.4, 0.45, 0.45], [0.6, 0.55, 0.55], h);
-    let mut world: World<f64> = block_world(
-        config,
-        &positions,
-        5e3,
-        0.3,
-        [1.0, 0.0, 0.0],
-        ActuatorConfig::default(),
-    );
-    let v: Vec<[f64; 3]> = positions.iter().map(v0).collect();
-    world.set_velocities(&v).expect("sizes match");
+    let (mut world, _, v) = soft_block_in_motion::<f64>(config, v0);
     // Equal particle masses: Σ|v|² is the kinetic energy up to a factor.
     let energy = |v: &[[f64; 3]]| {
         v.iter()

@@ -195,6 +195,24 @@ impl PhysicsConfig {
                 return bad("floor.up", "must be a unit vector");
             }
         }
+        let e = &self.effects;
+        // A negative coefficient would feed energy in (and make the viscous
+        // system indefinite, which conjugate gradients cannot solve).
+        for (field, value) in [
+            ("effects.air_drag_linear", e.air_drag_linear),
+            ("effects.air_drag_quadratic", e.air_drag_quadratic),
+            ("effects.floor_friction", e.floor_friction),
+            ("effects.viscosity", e.viscosity),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(field, "must be finite and non-negative");
+            }
+        }
+        if let Some(y) = e.plastic_yield
+            && !(y.is_finite() && y > 0.0)
+        {
+            return bad("effects.plastic_yield", "must be finite and positive");
+        }
         Ok(())
     }
 }

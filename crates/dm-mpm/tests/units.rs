@@ -883,6 +883,18 @@ fn config_validation_names_the_bad_field() {
             "floor.up",
             Box::new(|c| c.floor.as_mut().expect("floor").up = [0.0, 0.0, 2.0]),
         ),
+        (
+            "effects.viscosity",
+            Box::new(|c| c.effects.viscosity = -1.0),
+        ),
+        (
+            "effects.air_drag_linear",
+            Box::new(|c| c.effects.air_drag_linear = f64::NAN),
+        ),
+        (
+            "effects.plastic_yield",
+            Box::new(|c| c.effects.plastic_yield = Some(0.0)),
+        ),
     ];
     for (field, edit) in cases {
         let mut c = good.clone();

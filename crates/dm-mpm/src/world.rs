@@ -241,6 +241,18 @@ impl<T: Real> World<T> {
         Ok(())
     }
 
+    /// Sets the extra physics (drag, friction, plasticity, viscosity) in
+    /// force from the next substep.
+    pub fn set_effects(&mut self, effects: crate::Effects) -> Result<(), SimError> {
+        let mut config = self.config.clone();
+        config.effects = effects;
+        config.validate()?;
+        let particle_volume = self.particles.volume.first().map_or(0.0, |v| v.to_f64());
+        self.consts = Consts::new(&config, particle_volume * config.density);
+        self.config = config;
+        Ok(())
+    }
+
     /// Sets the actuator gains (k_p in 1/s², k_d in 1/s).
     pub fn set_gains(&mut self, kp: f64, kd: f64) {
         self.actuators.config.kp = kp;

@@ -38,6 +38,10 @@ enum Command {
         /// Measured substeps (after 20 warm-up substeps).
         #[arg(long, default_value_t = 400)]
         substeps: usize,
+        /// Viscous damping η, Pa·s (the grid's implicit solve; the block's
+        /// density is 1 kg/m³, so dt η/(ρ dx²) is printed to compare).
+        #[arg(long, default_value_t = 0.0)]
+        viscosity: f64,
     },
     /// Forward + backward of one truncated-BPTT window on the reference
     /// block (Neo-Hookean); loss = mean |x|² after the window; gradient
@@ -109,6 +113,7 @@ fn main() -> Result<()> {
             grid,
             experts,
             substeps,
+            viscosity,
         } => {
             let experts = match experts {
                 Experts::Nh => BenchExperts::NeoHookean,
@@ -116,6 +121,18 @@ fn main() -> Result<()> {
             };
             let mut world = bench_block::<f32>(particles, grid, experts, 0)
                 .context("building the benchmark block")?;
+            if viscosity > 0.0 {
+                let mut effects = world.config().effects.clone();
+                effects.viscosity = viscosity;
+                world
+                    .set_effects(effects)
+                    .context("setting the viscosity")?;
+                let c = world.config();
+                eprintln!(
+                    "# viscosity {viscosity} Pa·s: dt η/(ρ dx²) = {:.3}",
+                    c.dt * viscosity / (c.density * c.dx() * c.dx())
+                );
+            }
             for _ in 0..20 {
                 world.substep()?;
             }

@@ -250,10 +250,15 @@ pub fn colour_columns(image: &RgbImage, color: [u8; 3]) -> Vec<u32> {
 
 /// A tick value in at most 4 decimals (3 significant digits in
 /// scientific notation outside 1e-3..1e4, so close log ticks differ),
-/// never "-0".
+/// never "-0". Below 1e-12 a tick is the rounding of a linear axis's
+/// `lo + i·step` at zero (plotters drew "-2.78e-17" on a score axis), not
+/// a value any of our charts plots, so it reads "0".
 pub fn format_tick(v: f64) -> String {
+    const ROUNDING_ZERO: f64 = 1e-12;
     let a = v.abs();
-    if a != 0.0 && !(1e-3..1e4).contains(&a) {
+    if a < ROUNDING_ZERO {
+        "0".into()
+    } else if !(1e-3..1e4).contains(&a) {
         format!("{v:.2e}")
     } else {
         let text = format!("{v:.4}");
@@ -263,5 +268,20 @@ pub fn format_tick(v: f64) -> String {
         } else {
             text.into()
         }
+    }
+}
+
+#[cfg(test)]
+mod format_tick_tests {
+    use super::format_tick;
+
+    #[test]
+    fn axis_rounding_at_zero_reads_zero() {
+        assert_eq!(format_tick(-2.7755575615628914e-17), "0");
+        assert_eq!(format_tick(-0.0), "0");
+        assert_eq!(format_tick(0.05), "0.05");
+        assert_eq!(format_tick(-0.15), "-0.15");
+        assert_eq!(format_tick(2.5e-5), "2.50e-5");
+        assert_eq!(format_tick(12345.0), "1.23e4");
     }
 }

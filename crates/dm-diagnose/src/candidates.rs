@@ -124,6 +124,33 @@ fn params(pairs: &[(&str, f64)]) -> BTreeMap<String, f64> {
     pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect()
 }
 
+/// `parameters` with the coefficients a fit learns beside the material
+/// (drag and viscosity; dm-fit's `learn_effects`) read back from the
+/// fitted `model` that carries them. Other candidates' parameters are
+/// kept as tried.
+pub fn with_learnt_parameters(
+    candidate: Candidate,
+    parameters: &BTreeMap<String, f64>,
+    model: &WorldModel,
+) -> BTreeMap<String, f64> {
+    let effects = &model.physics.effects;
+    let learnt: &[(&str, f64)] = match candidate {
+        Candidate::AirDrag => &[
+            ("linear_per_s", effects.air_drag_linear),
+            ("quadratic_per_m", effects.air_drag_quadratic),
+        ],
+        Candidate::ViscousDamping => &[("viscosity_pa_s", effects.viscosity)],
+        _ => &[],
+    };
+    let mut parameters = parameters.clone();
+    for (key, value) in learnt {
+        if let Some(p) = parameters.get_mut(*key) {
+            *p = *value;
+        }
+    }
+    parameters
+}
+
 /// The model with `candidate` at `parameters` (keys as [`trials`] writes
 /// them); unknown keys are ignored, missing ones are zero.
 pub fn apply(

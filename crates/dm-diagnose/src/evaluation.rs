@@ -33,6 +33,8 @@ pub fn quick_fit_options() -> FitOptions {
         // Physics only: the diagnosis compares physical models.
         rgb_iters: 0,
         rgb_weight: dm_fit::rgb_stage::DEFAULT_RGB_WEIGHT,
+        // A candidate's fit learns its drag or viscosity beside the material.
+        freeze_effects: false,
     }
 }
 

@@ -25,7 +25,7 @@ mod report;
 pub mod signatures;
 
 use analysis::{Rollout, main_axis, match_tracks, per_track_error, region_errors, rollout};
-use candidates::{Candidate, Trial, apply, refinements, trials};
+use candidates::{Candidate, Trial, apply, refinements, trials, with_learnt_parameters};
 use dm_bundle::{Bundle, write_json_atomic};
 use dm_fit::material_fit::{MaterialFitConfig, fit_material, train_loss};
 use dm_model::WorldModel;
@@ -340,6 +340,8 @@ pub fn diagnose(
         } in fits
         {
             if let Some((trial, best)) = best_per_candidate.get_mut(name) {
+                trial.parameters =
+                    with_learnt_parameters(trial.candidate, &trial.parameters, &fitted);
                 fit_records.push(TrialRecord::new(name, &trial.parameters, &scored));
                 trial.model = fitted;
                 *best = scored;
@@ -445,7 +447,9 @@ pub fn diagnose(
             ..record
         };
         refit = Some(record);
-        extended = Some((extended_model, scored, trial.parameters.clone()));
+        let parameters =
+            with_learnt_parameters(trial.candidate, &trial.parameters, &extended_model);
+        extended = Some((extended_model, scored, parameters));
     }
     let extended_dir = out.join("extended_model");
     let (gain, effect_parameters, after_per_frame) = match &extended {

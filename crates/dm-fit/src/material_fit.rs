@@ -24,7 +24,8 @@ use dm_model::residual::{
 use dm_model::{ExpertChoice, ModelError, WorldModel};
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
-use dm_mpm::{PatchParams, SimError};
+use dm_mpm::tape::EffectGrads;
+use dm_mpm::{Effects, PatchParams, SimError};
 use serde::{Deserialize, Serialize};
 
 /// Why a fit failed.
@@ -63,6 +64,15 @@ pub struct MaterialFitConfig {
     pub residual_learning_rate: f64,
     /// Step the residual network only; the material stays as it is.
     pub freeze_material: bool,
+    /// Also step the effect coefficients the model has switched on (linear
+    /// and quadratic air drag, viscosity; issue 6), in log space at the
+    /// material rate, beside the material.
+    #[serde(default = "learn_effects_by_default")]
+    pub learn_effects: bool,
+}
+
+fn learn_effects_by_default() -> bool {
+    true
 }
 
 impl MaterialFitConfig {
@@ -88,6 +98,7 @@ impl Default for MaterialFitConfig {
             frames: None,
             residual_learning_rate: 5e-3,
             freeze_material: false,
+            learn_effects: true,
         }
     }
 }
@@ -178,6 +189,63 @@ pub struct LossGradients {
     /// L_dyn of each predicted frame 1, 2, … (before the step; without the
     /// regulariser and the extra term), for [`late_frames_loss`].
     pub frame_losses: Vec<f64>,
+    /// The effect coefficients (zero where an effect is off).
+    pub effects: EffectGrads,
+}
+
+/// Adam's group of the learnt effect coefficients (natural logs).
+pub const EFFECTS_GROUP: &str = "effects_log";
+
+/// An effect coefficient a fit can learn: its name, reading, writing and
+/// gradient. Only coefficients the model has switched on (> 0) are
+/// learnt: they are stepped in log space, which keeps them positive and
+/// makes each step relative, and an effect that is off stays off.
+struct LearnableEffect {
+    read: fn(&Effects) -> f64,
+    write: fn(&mut Effects, f64),
+    gradient: fn(&EffectGrads) -> f64,
+}
+
+const LEARNABLE_EFFECTS: [LearnableEffect; 3] = [
+    LearnableEffect {
+        read: |e| e.air_drag_linear,
+        write: |e, v| e.air_drag_linear = v,
+        gradient: |g| g.air_drag_linear,
+    },
+    LearnableEffect {
+        read: |e| e.air_drag_quadratic,
+        write: |e, v| e.air_drag_quadratic = v,
+        gradient: |g| g.air_drag_quadratic,
+    },
+    LearnableEffect {
+        read: |e| e.viscosity,
+        write: |e, v| e.viscosity = v,
+        gradient: |g| g.viscosity,
+    },
+];
+
+fn switched_on(effects: &Effects) -> impl Iterator<Item = &'static LearnableEffect> + '_ {
+    LEARNABLE_EFFECTS.iter().filter(|l| (l.read)(effects) > 0.0)
+}
+
+/// The log coefficients of the switched-on effects and the loss gradient
+/// with respect to them (∂L/∂ln k = k ∂L/∂k); empty when none is on.
+fn effect_log_parameters(effects: &Effects, grads: &EffectGrads) -> (Vec<f64>, Vec<f64>) {
+    switched_on(effects)
+        .map(|l| {
+            let value = (l.read)(effects);
+            (value.ln(), value * (l.gradient)(grads))
+        })
+        .unzip()
+}
+
+/// Writes stepped log coefficients back (same order as
+/// [`effect_log_parameters`]).
+fn set_effect_log_parameters(effects: &mut Effects, logs: &[f64]) {
+    let on: Vec<&LearnableEffect> = switched_on(effects).collect();
+    for (l, log) in on.into_iter().zip(logs) {
+        (l.write)(effects, log.exp());
+    }
 }
 
 /// Share of the fitted frames, at their end, that [`late_frames_loss`]
@@ -269,6 +337,7 @@ pub fn loss_and_gradient(
     let mut grad_lambda = vec![0.0f32; n];
     let mut grad_weights = vec![[0.0f32; 3]; n];
     let mut grad_residual = network.as_ref().map(|net| vec![0.0; net.parameter_count()]);
+    let mut grad_effects = EffectGrads::default();
     for t in (0..steps).rev() {
         for (c, g) in carried.x.iter_mut().zip(&frame_grads[t]) {
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
@@ -295,6 +364,7 @@ pub fn loss_and_gradient(
             x_start_grad = Some(grads.x_start);
         }
         let g = world.backward_frame(&tape, &carried)?;
+        grad_effects += g.effects;
         for p in 0..n {
             grad_mu[p] += g.mu[p];
             grad_lambda[p] += g.lambda[p];
@@ -326,6 +396,7 @@ pub fn loss_and_gradient(
             patches: grads,
             residual: grad_residual,
             frame_losses,
+            effects: grad_effects,
         },
     ))
 }
@@ -379,9 +450,16 @@ pub fn material_step(
     )?;
     let late_loss = late_frames_loss(&grads.frame_losses);
     let mut all_grads = to_param_set(&grads.patches)?;
+    let mut params = to_param_set(&model.params)?;
+    let learn_effects = config.learn_effects && !config.freeze_material;
+    let (effect_logs, effect_grads) = effect_log_parameters(&model.physics.effects, &grads.effects);
+    if learn_effects && !effect_logs.is_empty() {
+        // A physics group like E: clipped per group and globally with it.
+        all_grads = all_grads.with_group(EFFECTS_GROUP, effect_grads)?;
+        params = params.with_group(EFFECTS_GROUP, effect_logs)?;
+    }
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
-    let mut params = to_param_set(&model.params)?;
     if let (Some(residual_grads), Some(state)) = (grads.residual, model.residual.as_ref()) {
         let mut residual_grads = ParamSet::new().with_group(RESIDUAL_GROUP, residual_grads)?;
         clip_global_norm(&mut residual_grads, RESIDUAL_CLIP_NORM)?;
@@ -405,6 +483,9 @@ pub fn material_step(
     adam.step(&mut params, &all_grads)?;
     if !config.freeze_material {
         from_param_set(&params, &mut model.params);
+    }
+    if let (true, Some(logs)) = (learn_effects, params.get(EFFECTS_GROUP)) {
+        set_effect_log_parameters(&mut model.physics.effects, logs);
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

@@ -72,6 +72,15 @@ pub struct FitOptions {
     #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
+    /// Keep the effect coefficients the start model carries (drag,
+    /// viscosity) fixed. By default the material stages learn them in log
+    /// space beside the material; a model fitted from a bundle has none
+    /// switched on, so this only matters for a start with an effect in
+    /// place (`dm-diagnose`'s candidates, issue 6). Run records written
+    /// before the option existed read as `false`.
+    #[arg(long)]
+    #[serde(default)]
+    pub freeze_effects: bool,
 }
 
 /// Which iterate of the residual-only stage the fit keeps.
@@ -173,6 +182,7 @@ fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig
         frames: None,
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
+        learn_effects: !options.freeze_effects,
     }
 }
 

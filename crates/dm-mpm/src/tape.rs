@@ -95,6 +95,28 @@ pub struct FrameGrads<T> {
     pub lambda: Vec<T>,
     pub weights: Vec<[T; 3]>,
     pub gains: GainGrads,
+    /// Adjoints of the effect coefficients over the differentiated window.
+    pub effects: EffectGrads,
+}
+
+/// Adjoints of the learnable effect coefficients (`PhysicsConfig::effects`),
+/// summed over particles and substeps in f64.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EffectGrads {
+    /// ∂L/∂k₁, linear air drag (1/s).
+    pub air_drag_linear: f64,
+    /// ∂L/∂k₂, quadratic air drag (1/m).
+    pub air_drag_quadratic: f64,
+    /// ∂L/∂η, viscosity (Pa·s).
+    pub viscosity: f64,
+}
+
+impl std::ops::AddAssign for EffectGrads {
+    fn add_assign(&mut self, other: Self) {
+        self.air_drag_linear += other.air_drag_linear;
+        self.air_drag_quadratic += other.air_drag_quadratic;
+        self.viscosity += other.viscosity;
+    }
 }
 
 impl<T: Real> World<T> {
@@ -121,6 +143,7 @@ impl<T: Real> World<T> {
         let mut lambda = vec![T::zero(); n];
         let mut weights = vec![[T::zero(); 3]; n];
         let mut gains = GainGrads::default();
+        let mut effects = EffectGrads::default();
         let mut step = SubstepGrads::zeros(n);
         let k = self.consts;
         let coupled = self.actuators.coupling_count() > 0;
@@ -172,6 +195,11 @@ impl<T: Real> World<T> {
                 gains.kp += g.kp;
                 gains.kd += g.kd;
             }
+            for share in &step.effects {
+                effects.air_drag_linear += share[0].to_f64();
+                effects.air_drag_quadratic += share[1].to_f64();
+            }
+            effects.viscosity += step.viscosity.to_f64();
             for p in 0..n {
                 mu[p] += step.mu[p];
                 lambda[p] += step.lambda[p];
@@ -194,6 +222,7 @@ impl<T: Real> World<T> {
             lambda: self.to_caller_order(&lambda),
             weights: self.to_caller_order(&weights),
             gains,
+            effects,
         })
     }
 }

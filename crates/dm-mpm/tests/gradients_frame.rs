@@ -260,3 +260,69 @@ fn issue3_non_finite_velocity_correction_is_refused() {
         "wrong length"
     );
 }
+
+/// Issue 6: the effect coefficients a fit learns (drag k₁, k₂ and the
+/// viscosity η) through a whole frame, actuators coupled.
+#[test]
+fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
+    let mut w = world();
+    // dt η / (ρ dx²) ≈ 3 at 16³ (dx 3.1 cm, ρ 1000): the implicit viscous
+    // solve dominates the nodes' inertia, as on the truth scenes.
+    let base = dm_mpm::Effects {
+        air_drag_linear: 0.5,
+        air_drag_quadratic: 2.0,
+        viscosity: 3000.0,
+        ..dm_mpm::Effects::default()
+    };
+    w.set_effects(base.clone()).expect("effects");
+    let n = w.particle_count();
+    let start = w.state();
+    let to = anchors_to();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let probe = ParticleGrads {
+        x: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
+        v: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
+        f: vec![Mat3::zeros(); n],
+        c: vec![Mat3::zeros(); n],
+    };
+    let tape = w
+        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
+        .expect("taped frame");
+    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    // Each coefficient is probed along a direction as large as itself: the
+    // loss moves ∝ dt |v| per unit of drag, so an absolute FD_STEP would sit
+    // at the round-off floor of the O(1) loss; a relative step of 1e-6
+    // keeps the truncation error O(h²) far below FD_RTOL.
+    type Set = fn(&mut dm_mpm::Effects, f64);
+    let coefficients: [(&str, f64, f64, Set); 3] = [
+        (
+            "air_drag_linear",
+            grads.effects.air_drag_linear,
+            base.air_drag_linear,
+            |e, v| e.air_drag_linear = v,
+        ),
+        (
+            "air_drag_quadratic",
+            grads.effects.air_drag_quadratic,
+            base.air_drag_quadratic,
+            |e, v| e.air_drag_quadratic = v,
+        ),
+        (
+            "viscosity",
+            grads.effects.viscosity,
+            base.viscosity,
+            |e, v| e.viscosity = v,
+        ),
+    ];
+    for (name, analytic, value, set) in coefficients {
+        assert!(analytic != 0.0, "{name}: the frame must depend on it");
+        check(name, analytic * value, &mut |h| {
+            let mut effects = base.clone();
+            set(&mut effects, value * (1.0 + h));
+            w.set_effects(effects).expect("effects");
+            w.set_state(&start).expect("state");
+            w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+            loss(&w.state(), &probe)
+        });
+    }
+}

@@ -124,8 +124,8 @@ fn params(pairs: &[(&str, f64)]) -> BTreeMap<String, f64> {
     pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect()
 }
 
-/// `parameters` with the coefficients a fit learns beside the material
-/// (drag and viscosity; dm-fit's `learn_effects`) read back from the
+/// `parameters` with the terms a fit learns beside the material (drag and
+/// viscosity coefficients, the tilt; `dm_fit::learnt_effects`) read back from the
 /// fitted `model` that carries them. Other candidates' parameters are
 /// kept as tried.
 pub fn with_learnt_parameters(
@@ -134,18 +134,36 @@ pub fn with_learnt_parameters(
     model: &WorldModel,
 ) -> BTreeMap<String, f64> {
     let effects = &model.physics.effects;
-    let learnt: &[(&str, f64)] = match candidate {
-        Candidate::AirDrag => &[
+    let learnt: Vec<(&str, f64)> = match candidate {
+        Candidate::AirDrag => vec![
             ("linear_per_s", effects.air_drag_linear),
             ("quadratic_per_m", effects.air_drag_quadratic),
         ],
-        Candidate::ViscousDamping => &[("viscosity_pa_s", effects.viscosity)],
-        _ => &[],
+        Candidate::ViscousDamping => vec![("viscosity_pa_s", effects.viscosity)],
+        Candidate::GroundTilt => match &model.physics.floor {
+            Some(floor) => {
+                let g = model.physics.gravity;
+                let (east, north) = horizontal_basis(floor.up);
+                let down = -dot(g, floor.up) / norm(g);
+                vec![
+                    ("tilt_deg", down.clamp(-1.0, 1.0).acos().to_degrees()),
+                    (
+                        "azimuth_deg",
+                        dot(g, north)
+                            .atan2(dot(g, east))
+                            .to_degrees()
+                            .rem_euclid(360.0),
+                    ),
+                ]
+            }
+            None => Vec::new(),
+        },
+        _ => Vec::new(),
     };
     let mut parameters = parameters.clone();
     for (key, value) in learnt {
-        if let Some(p) = parameters.get_mut(*key) {
-            *p = *value;
+        if let Some(p) = parameters.get_mut(key) {
+            *p = value;
         }
     }
     parameters
@@ -215,25 +233,7 @@ pub fn apply(
     model
 }
 
-/// Two horizontal unit vectors (east, north) completing `up`; for +z up
-/// they are +x and +y, so azimuths read as in the world frame.
-pub fn horizontal_basis(up: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let helper = if up[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let d = dot(helper, up);
-    let e = [0, 1, 2].map(|a| helper[a] - d * up[a]);
-    let len = norm(e);
-    let east = e.map(|c| c / len);
-    let north = [
-        up[1] * east[2] - up[2] * east[1],
-        up[2] * east[0] - up[0] * east[2],
-        up[0] * east[1] - up[1] * east[0],
-    ];
-    (east, north)
-}
+pub use dm_mpm::config::horizontal_basis;
 
 /// The parameter values tried for `candidate`: a coarse grid over the
 /// range where the effect is visible in a clip of a few seconds, oriented

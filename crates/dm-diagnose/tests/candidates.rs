@@ -2,7 +2,7 @@
 //! fit has already matched the mean stiffness-to-density ratio) and tries
 //! two orthogonal axes (a square cloth's first axis is arbitrary).
 
-use dm_diagnose::candidates::{Candidate, trials};
+use dm_diagnose::candidates::{Candidate, apply, trials, with_learnt_parameters};
 use dm_diagnose::signatures::Signatures;
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Preset, SynthConfig};
@@ -13,6 +13,23 @@ const MASS_RTOL: f64 = 1e-9;
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|i| a[i] * b[i]).sum()
+}
+
+fn tiny_cloth_model(dir: &std::path::Path) -> WorldModel {
+    let scene = dir.join("scene");
+    dm_synth::generate(
+        &SynthConfig::tiny(Preset::Cloth, 7),
+        &scene,
+        &dir.join("truth.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
+    let options = ModelOptions {
+        residual: ResidualKind::None,
+        ..ModelOptions::default()
+    };
+    WorldModel::from_bundle(&bundle, &options).expect("model")
 }
 
 fn total_mass(model: &WorldModel) -> f64 {
@@ -26,21 +43,7 @@ fn total_mass(model: &WorldModel) -> f64 {
 #[test]
 fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let config = SynthConfig::tiny(Preset::Cloth, 7);
-    let scene = dir.path().join("scene");
-    dm_synth::generate(
-        &config,
-        &scene,
-        &dir.path().join("truth.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
-    let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
-    let options = ModelOptions {
-        residual: ResidualKind::None,
-        ..ModelOptions::default()
-    };
-    let model = WorldModel::from_bundle(&bundle, &options).expect("model");
+    let model = tiny_cloth_model(dir.path());
     let quiet = Signatures {
         drag_rate_per_s: 0.0,
         drag_t: 0.0,
@@ -84,4 +87,33 @@ fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
         axes[2],
         axes[0]
     );
+}
+
+/// Issue 6: what a candidate's fit learnt is read back from the fitted
+/// model in the trial's own terms (a tilt's angle and azimuth, a drag's
+/// coefficient), so `effect_parameters` reports the learnt values.
+#[test]
+fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = tiny_cloth_model(dir.path());
+    let tried = |pairs: &[(&str, f64)]| -> std::collections::BTreeMap<String, f64> {
+        pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect()
+    };
+    let tilt = tried(&[("tilt_deg", 7.5), ("azimuth_deg", 200.0)]);
+    let as_tried = with_learnt_parameters(
+        Candidate::GroundTilt,
+        &tried(&[("tilt_deg", 6.0), ("azimuth_deg", 180.0)]),
+        &apply(&model, Candidate::GroundTilt, &tilt),
+    );
+    for key in ["tilt_deg", "azimuth_deg"] {
+        assert!(
+            (as_tried[key] - tilt[key]).abs() < 1e-9,
+            "{key}: {as_tried:?}"
+        );
+    }
+    let drag = tried(&[("quadratic_per_m", 150.0)]);
+    let mut fitted = apply(&model, Candidate::AirDrag, &drag);
+    fitted.physics.effects.air_drag_quadratic = 97.0;
+    let learnt = with_learnt_parameters(Candidate::AirDrag, &drag, &fitted);
+    assert_eq!(learnt, tried(&[("quadratic_per_m", 97.0)]), "no key added");
 }

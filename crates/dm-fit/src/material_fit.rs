@@ -10,6 +10,7 @@
 //! carried from frame to frame (truncated BPTT); the per-particle
 //! material gradients go back to the patches, and Adam takes a clipped step.
 
+use crate::learnt_effects;
 use crate::loss::{
     LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
     frame_loss,
@@ -25,7 +26,7 @@ use dm_model::{ExpertChoice, ModelError, WorldModel};
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
 use dm_mpm::tape::EffectGrads;
-use dm_mpm::{Effects, PatchParams, SimError};
+use dm_mpm::{PatchParams, SimError};
 use serde::{Deserialize, Serialize};
 
 /// Why a fit failed.
@@ -64,9 +65,9 @@ pub struct MaterialFitConfig {
     pub residual_learning_rate: f64,
     /// Step the residual network only; the material stays as it is.
     pub freeze_material: bool,
-    /// Also step the effect coefficients the model has switched on (linear
-    /// and quadratic air drag, viscosity; issue 6), in log space at the
-    /// material rate, beside the material.
+    /// Also step the effect terms the model has switched on (drag and
+    /// viscosity coefficients, a ground tilt; issue 6) beside the material
+    /// ([`crate::learnt_effects`]).
     #[serde(default = "learn_effects_by_default")]
     pub learn_effects: bool,
 }
@@ -84,6 +85,12 @@ impl MaterialFitConfig {
             config
                 .group_learning_rates
                 .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
+        }
+        if self.learn_effects && !self.freeze_material && learnt_effects::has_tilt(&model.physics) {
+            config.group_learning_rates.insert(
+                learnt_effects::TILT_GROUP.into(),
+                learnt_effects::TILT_RATE_FACTOR * self.learning_rate,
+            );
         }
         Adam::new(config)
     }
@@ -191,61 +198,6 @@ pub struct LossGradients {
     pub frame_losses: Vec<f64>,
     /// The effect coefficients (zero where an effect is off).
     pub effects: EffectGrads,
-}
-
-/// Adam's group of the learnt effect coefficients (natural logs).
-pub const EFFECTS_GROUP: &str = "effects_log";
-
-/// An effect coefficient a fit can learn: its name, reading, writing and
-/// gradient. Only coefficients the model has switched on (> 0) are
-/// learnt: they are stepped in log space, which keeps them positive and
-/// makes each step relative, and an effect that is off stays off.
-struct LearnableEffect {
-    read: fn(&Effects) -> f64,
-    write: fn(&mut Effects, f64),
-    gradient: fn(&EffectGrads) -> f64,
-}
-
-const LEARNABLE_EFFECTS: [LearnableEffect; 3] = [
-    LearnableEffect {
-        read: |e| e.air_drag_linear,
-        write: |e, v| e.air_drag_linear = v,
-        gradient: |g| g.air_drag_linear,
-    },
-    LearnableEffect {
-        read: |e| e.air_drag_quadratic,
-        write: |e, v| e.air_drag_quadratic = v,
-        gradient: |g| g.air_drag_quadratic,
-    },
-    LearnableEffect {
-        read: |e| e.viscosity,
-        write: |e, v| e.viscosity = v,
-        gradient: |g| g.viscosity,
-    },
-];
-
-fn switched_on(effects: &Effects) -> impl Iterator<Item = &'static LearnableEffect> + '_ {
-    LEARNABLE_EFFECTS.iter().filter(|l| (l.read)(effects) > 0.0)
-}
-
-/// The log coefficients of the switched-on effects and the loss gradient
-/// with respect to them (∂L/∂ln k = k ∂L/∂k); empty when none is on.
-fn effect_log_parameters(effects: &Effects, grads: &EffectGrads) -> (Vec<f64>, Vec<f64>) {
-    switched_on(effects)
-        .map(|l| {
-            let value = (l.read)(effects);
-            (value.ln(), value * (l.gradient)(grads))
-        })
-        .unzip()
-}
-
-/// Writes stepped log coefficients back (same order as
-/// [`effect_log_parameters`]).
-fn set_effect_log_parameters(effects: &mut Effects, logs: &[f64]) {
-    let on: Vec<&LearnableEffect> = switched_on(effects).collect();
-    for (l, log) in on.into_iter().zip(logs) {
-        (l.write)(effects, log.exp());
-    }
 }
 
 /// Share of the fitted frames, at their end, that [`late_frames_loss`]
@@ -452,11 +404,10 @@ pub fn material_step(
     let mut all_grads = to_param_set(&grads.patches)?;
     let mut params = to_param_set(&model.params)?;
     let learn_effects = config.learn_effects && !config.freeze_material;
-    let (effect_logs, effect_grads) = effect_log_parameters(&model.physics.effects, &grads.effects);
-    if learn_effects && !effect_logs.is_empty() {
-        // A physics group like E: clipped per group and globally with it.
-        all_grads = all_grads.with_group(EFFECTS_GROUP, effect_grads)?;
-        params = params.with_group(EFFECTS_GROUP, effect_logs)?;
+    if learn_effects {
+        // Physics groups like E: clipped per group and globally with it.
+        (params, all_grads) =
+            learnt_effects::add_groups(&model.physics, &grads.effects, params, all_grads)?;
     }
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
@@ -484,8 +435,8 @@ pub fn material_step(
     if !config.freeze_material {
         from_param_set(&params, &mut model.params);
     }
-    if let (true, Some(logs)) = (learn_effects, params.get(EFFECTS_GROUP)) {
-        set_effect_log_parameters(&mut model.physics.effects, logs);
+    if learn_effects {
+        learnt_effects::write_back(&mut model.physics, &params);
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

@@ -216,3 +216,24 @@ impl PhysicsConfig {
         Ok(())
     }
 }
+
+/// Two horizontal unit vectors (east, north) completing the unit vector
+/// `up` to a right-handed frame; for +z up they are +x and +y, so azimuths
+/// read as in the world frame.
+pub fn horizontal_basis(up: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let helper = if up[0].abs() < 0.9 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let d: f64 = (0..3).map(|a| helper[a] * up[a]).sum();
+    let e = [0, 1, 2].map(|a| helper[a] - d * up[a]);
+    let len = e.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let east = e.map(|c| c / len);
+    let north = [
+        up[1] * east[2] - up[2] * east[1],
+        up[2] * east[0] - up[0] * east[2],
+        up[0] * east[1] - up[1] * east[0],
+    ];
+    (east, north)
+}

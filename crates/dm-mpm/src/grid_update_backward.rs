@@ -17,6 +17,10 @@
 //! With η > 0 the viscous solve sits between u_pre and the boundaries:
 //! the boundaries' adjoint is taken at its output, and its own adjoint
 //! (`viscosity_backward.rs`) turns that into ū_pre and a share of m̄.
+//!
+//! Gravity (a learnable tilt, issue 6): ḡ = dt γ Σ ū_pre over the nodes
+//! with mass, summed per slab and then over slabs in order, so the sum
+//! does not depend on the thread count.
 
 use crate::SimError;
 use crate::grid::Grid;
@@ -26,27 +30,48 @@ use crate::state::Consts;
 use crate::viscosity::ViscousSolver;
 use rayon::prelude::*;
 
+/// Adjoints of the grid update's parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridParameterGrads<T: Real> {
+    /// Adjoint of the viscosity η (zero when η = 0).
+    pub viscosity: T,
+    /// Adjoint of the gravity vector.
+    pub gravity: Vec3<T>,
+}
+
+/// dt γ Σ ū_pre of one slab's nodes with mass (see the module docs).
+fn slab_gravity_adjoint<T: Real>(k: &Consts<T>, slab: &[T::Lane4], grad: &[Vec3<T>]) -> Vec3<T> {
+    let mut sum = Vec3::zeros();
+    for (node, g) in slab.iter().zip(grad) {
+        if node.to_array()[3] > k.empty_node_mass {
+            sum += g;
+        }
+    }
+    sum * (k.dt * k.grid_damping)
+}
+
 /// Adjoint of the grid update. `pre` is the grid right after P2G
 /// (momentum, mass), `grad_u` the adjoint of the node velocities.
-/// Writes per node `[P̄_x, P̄_y, P̄_z, m̄]` and returns the adjoint of the
-/// viscosity η (zero when η = 0).
+/// Writes per node `[P̄_x, P̄_y, P̄_z, m̄]` and returns the adjoints of the
+/// viscosity and gravity.
 pub fn grid_update_backward<T: Real>(
     k: &Consts<T>,
     pre: &Grid<T>,
     grad_u: &[T::Lane4],
     grad_pre: &mut Vec<T::Lane4>,
     viscous: &mut ViscousSolver<T>,
-) -> Result<T, SimError> {
+) -> Result<GridParameterGrads<T>, SimError> {
     let res = k.res;
     grad_pre.clear();
     grad_pre.resize(pre.nodes.len(), T::Lane4::default());
     if k.viscosity == T::zero() {
-        grad_pre
+        let slab_sums: Vec<Vec3<T>> = grad_pre
             .par_chunks_mut(res * res)
             .zip(pre.nodes.par_chunks(res * res))
             .zip(grad_u.par_chunks(res * res))
             .enumerate()
-            .for_each(|(i, ((out, slab), gslab))| {
+            .map(|(i, ((out, slab), gslab))| {
+                let mut gravity = Vec3::zeros();
                 for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
                     let lanes = node.to_array();
                     let m = lanes[3];
@@ -62,10 +87,16 @@ pub fn grid_update_backward<T: Real>(
                         u,
                         Vec3::new(ga[0], ga[1], ga[2]),
                     );
+                    gravity += gu;
                     *o = velocity_adjoint(k, momentum, m, gu, T::zero());
                 }
-            });
-        return Ok(T::zero());
+                gravity * (k.dt * k.grid_damping)
+            })
+            .collect();
+        return Ok(GridParameterGrads {
+            viscosity: T::zero(),
+            gravity: slab_sums.iter().fold(Vec3::zeros(), |a, b| a + b),
+        });
     }
     // u per node, then the viscous solve's v: recomputed, as the rest of
     // the grid update's forward values are.
@@ -114,6 +145,14 @@ pub fn grid_update_backward<T: Real>(
         }
         grad_viscosity = vjp.viscosity;
     }
+    let gravity = pre
+        .nodes
+        .par_chunks(res * res)
+        .zip(grad_v.par_chunks(res * res))
+        .map(|(slab, grad)| slab_gravity_adjoint(k, slab, grad))
+        .collect::<Vec<_>>()
+        .iter()
+        .fold(Vec3::zeros(), |a, b| a + b);
     grad_pre
         .par_iter_mut()
         .zip(&pre.nodes)
@@ -129,7 +168,10 @@ pub fn grid_update_backward<T: Real>(
     viscous.backward_grid = velocities;
     viscous.backward_grad_v = grad_v;
     viscous.backward_grad_mass = grad_mass;
-    Ok(grad_viscosity)
+    Ok(GridParameterGrads {
+        viscosity: grad_viscosity,
+        gravity,
+    })
 }
 
 /// `[P̄, m̄]` of u = (P/m + dt g) γ given ū, plus `extra_mass` (m̄ from the

@@ -97,6 +97,8 @@ pub struct SubstepGrads<T> {
     pub effects: Vec<[T; 2]>,
     /// Adjoint of the viscosity η (the grid's implicit viscous solve).
     pub viscosity: T,
+    /// Adjoint of the gravity vector (a ground tilt's parameter).
+    pub gravity: Vec3<T>,
 }
 
 /// Accumulated wall time per solver stage (for benchmarks).
@@ -183,6 +185,7 @@ impl<T: Real> SubstepGrads<T> {
             external_accel: vec![Vec3::zeros(); n],
             effects: vec![[T::zero(); 2]; n],
             viscosity: T::zero(),
+            gravity: Vec3::zeros(),
         }
     }
 
@@ -255,13 +258,15 @@ pub(crate) fn substep_backward_into<T: Real>(
         &mut scratch.grad_u,
         &mut scratch.gather_bar,
     );
-    grads.viscosity = grid_update_backward(
+    let grid_parameters = grid_update_backward(
         k,
         pre_grid,
         &scratch.grad_u,
         &mut scratch.grad_pre,
         &mut scratch.viscous,
     )?;
+    grads.viscosity = grid_parameters.viscosity;
+    grads.gravity = grid_parameters.gravity;
     let grad_pre = &scratch.grad_pre;
     let state = &mut grads.state;
     (

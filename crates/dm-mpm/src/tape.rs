@@ -99,8 +99,8 @@ pub struct FrameGrads<T> {
     pub effects: EffectGrads,
 }
 
-/// Adjoints of the learnable effect coefficients (`PhysicsConfig::effects`),
-/// summed over particles and substeps in f64.
+/// Adjoints of the learnable effect coefficients (`PhysicsConfig::effects`)
+/// and of gravity, summed over particles and substeps in f64.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct EffectGrads {
     /// ∂L/∂k₁, linear air drag (1/s).
@@ -109,6 +109,8 @@ pub struct EffectGrads {
     pub air_drag_quadratic: f64,
     /// ∂L/∂η, viscosity (Pa·s).
     pub viscosity: f64,
+    /// ∂L/∂g, the gravity vector (m/s²; a ground tilt turns it).
+    pub gravity: [f64; 3],
 }
 
 impl std::ops::AddAssign for EffectGrads {
@@ -116,6 +118,9 @@ impl std::ops::AddAssign for EffectGrads {
         self.air_drag_linear += other.air_drag_linear;
         self.air_drag_quadratic += other.air_drag_quadratic;
         self.viscosity += other.viscosity;
+        for a in 0..3 {
+            self.gravity[a] += other.gravity[a];
+        }
     }
 }
 
@@ -200,6 +205,9 @@ impl<T: Real> World<T> {
                 effects.air_drag_quadratic += share[1].to_f64();
             }
             effects.viscosity += step.viscosity.to_f64();
+            for a in 0..3 {
+                effects.gravity[a] += step.gravity[a].to_f64();
+            }
             for p in 0..n {
                 mu[p] += step.mu[p];
                 lambda[p] += step.lambda[p];

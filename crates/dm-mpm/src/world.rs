@@ -246,6 +246,18 @@ impl<T: Real> World<T> {
     pub fn set_effects(&mut self, effects: crate::Effects) -> Result<(), SimError> {
         let mut config = self.config.clone();
         config.effects = effects;
+        self.replace_config(config)
+    }
+
+    /// Sets gravity (m/s², world frame) from the next substep.
+    pub fn set_gravity(&mut self, gravity: [f64; 3]) -> Result<(), SimError> {
+        let mut config = self.config.clone();
+        config.gravity = gravity;
+        self.replace_config(config)
+    }
+
+    /// Validates `config` and rebuilds the substep constants from it.
+    fn replace_config(&mut self, config: PhysicsConfig) -> Result<(), SimError> {
         config.validate()?;
         let particle_volume = self.particles.volume.first().map_or(0.0, |v| v.to_f64());
         self.consts = Consts::new(&config, particle_volume * config.density);

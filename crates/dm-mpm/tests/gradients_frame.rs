@@ -161,6 +161,31 @@ fn issue3_frame_adjoint_with_actuators_matches_finite_differences() {
         w.set_gains(800.0, 20.0);
         l
     });
+    check_gravity(&mut w, &start, &to, &probe, grads.effects.gravity);
+}
+
+/// ∂L/∂g along a tilt-like direction: gravity turned a little sideways
+/// (a direction of 10 m/s², so the loss moves well above round-off).
+fn check_gravity(
+    w: &mut World<f64>,
+    start: &Particles<f64>,
+    to: &[[f64; 3]],
+    probe: &ParticleGrads<f64>,
+    analytic: [f64; 3],
+) {
+    let base = w.config().gravity;
+    let direction = [6.0, -8.0, 0.5];
+    let along: f64 = (0..3).map(|a| analytic[a] * direction[a]).sum();
+    check("gravity", along, &mut |h| {
+        let mut config = w.config().clone();
+        config.gravity = std::array::from_fn(|a| base[a] + direction[a] * h);
+        w.set_gravity(config.gravity).expect("gravity");
+        w.set_state(start).expect("state");
+        w.step_frame(&FROM, to, &[true, true]).expect("frame");
+        let l = loss(&w.state(), probe);
+        w.set_gravity(base).expect("gravity");
+        l
+    });
 }
 
 #[test]
@@ -314,6 +339,8 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
             |e, v| e.viscosity = v,
         ),
     ];
+    check_gravity(&mut w, &start, &to, &probe, grads.effects.gravity);
+    w.set_effects(base.clone()).expect("effects");
     for (name, analytic, value, set) in coefficients {
         assert!(analytic != 0.0, "{name}: the frame must depend on it");
         check(name, analytic * value, &mut |h| {

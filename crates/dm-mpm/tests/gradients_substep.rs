@@ -315,6 +315,12 @@ fn check_scene(seed: u64, s: Scene) {
         EFFECT_DIRECTION * grads.viscosity,
         &|t, h| t.consts.viscosity += EFFECT_DIRECTION * h,
     );
+    // Gravity (a ground tilt's parameter): it moves the loss by dt per unit,
+    // so it is probed along the same long direction.
+    let dg = rand_vec(&mut rng, EFFECT_DIRECTION);
+    check("gravity", &s, &probe, grads.gravity.dot(&dg), &|t, h| {
+        t.consts.gravity += dg * h
+    });
     if !pure_neo_hookean {
         let analytic: f64 = grads
             .weights

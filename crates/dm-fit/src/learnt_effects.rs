@@ -1,0 +1,230 @@
+//! Effect terms a fit learns beside the material (issue 6): the drag and
+//! viscosity coefficients and a ground tilt, where the start model has
+//! them switched on. A fit from a bundle has none on and learns none;
+//! `dm-diagnose` starts its candidates' fits with one on.
+//!
+//! * Coefficients (linear and quadratic drag, viscosity) are stepped as
+//!   natural logs: they stay positive and each step is relative (drag
+//!   spans 1–200 /s, η 3e3–5e4 Pa·s); ∂L/∂ln k = k ∂L/∂k.
+//! * A tilt is gravity turned away from the floor's down direction. It is
+//!   learnt as the horizontal components h = (h_e, h_n) of ĝ in the
+//!   floor's (east, north) basis, |g| fixed: g = |g| (h_e e + h_n n − c up)
+//!   with c = √(1 − |h|²), so ∂g/∂h_e = |g| (e + (h_e/c) up). Its Adam rate
+//!   is [`TILT_RATE_FACTOR`] × the material rate: at 0.1 a step would turn
+//!   gravity by ≈ 6°, as much as a whole hidden tilt.
+//!
+//! The gradients are the frame adjoint's `EffectGrads` (dm-mpm `tape.rs`;
+//! f64 finite-difference tests in `crates/dm-mpm/tests/gradients_frame.rs`).
+
+use crate::optim::{OptimError, ParamSet};
+use dm_mpm::config::horizontal_basis;
+use dm_mpm::tape::EffectGrads;
+use dm_mpm::{Effects, PhysicsConfig};
+
+/// Adam's group of the learnt effect coefficients (natural logs).
+pub const EFFECTS_GROUP: &str = "effects_log";
+/// Adam's group of the tilt's horizontal components.
+pub const TILT_GROUP: &str = "gravity_tilt";
+/// The tilt's Adam rate relative to the material rate (module docs).
+pub const TILT_RATE_FACTOR: f64 = 0.2;
+/// Below this |h| (≈ 0.006°) gravity counts as untilted: the tilt is off.
+const TILT_OFF: f64 = 1e-4;
+
+/// A coefficient in `Effects`: how to read, write and differentiate it.
+struct Coefficient {
+    read: fn(&Effects) -> f64,
+    write: fn(&mut Effects, f64),
+    gradient: fn(&EffectGrads) -> f64,
+}
+
+const COEFFICIENTS: [Coefficient; 3] = [
+    Coefficient {
+        read: |e| e.air_drag_linear,
+        write: |e, v| e.air_drag_linear = v,
+        gradient: |g| g.air_drag_linear,
+    },
+    Coefficient {
+        read: |e| e.air_drag_quadratic,
+        write: |e, v| e.air_drag_quadratic = v,
+        gradient: |g| g.air_drag_quadratic,
+    },
+    Coefficient {
+        read: |e| e.viscosity,
+        write: |e, v| e.viscosity = v,
+        gradient: |g| g.viscosity,
+    },
+];
+
+fn switched_on(effects: &Effects) -> impl Iterator<Item = &'static Coefficient> + '_ {
+    COEFFICIENTS.iter().filter(|c| (c.read)(effects) > 0.0)
+}
+
+/// The tilt's frame: the floor's up and horizontal basis, |g| and h.
+struct Tilt {
+    up: [f64; 3],
+    east: [f64; 3],
+    north: [f64; 3],
+    magnitude: f64,
+    h: [f64; 2],
+}
+
+impl Tilt {
+    /// The tilt of `physics`, when it has a floor and gravity is tilted.
+    fn of(physics: &PhysicsConfig) -> Option<Tilt> {
+        let up = physics.floor.as_ref()?.up;
+        let (east, north) = horizontal_basis(up);
+        let g = physics.gravity;
+        let magnitude = g.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if magnitude == 0.0 {
+            return None;
+        }
+        let along = |d: [f64; 3]| (0..3).map(|a| g[a] * d[a]).sum::<f64>() / magnitude;
+        let h = [along(east), along(north)];
+        (h[0].hypot(h[1]) > TILT_OFF).then_some(Tilt {
+            up,
+            east,
+            north,
+            magnitude,
+            h,
+        })
+    }
+
+    fn gravity(&self, h: [f64; 2]) -> [f64; 3] {
+        // |h| < 1 always in practice (tilts of a few degrees); the clamp
+        // keeps a wild step from producing NaN.
+        let c = (1.0 - h[0] * h[0] - h[1] * h[1]).max(0.0).sqrt();
+        std::array::from_fn(|a| {
+            self.magnitude * (h[0] * self.east[a] + h[1] * self.north[a] - c * self.up[a])
+        })
+    }
+
+    fn gradient(&self, grad_g: [f64; 3]) -> [f64; 2] {
+        let c = (1.0 - self.h[0] * self.h[0] - self.h[1] * self.h[1])
+            .max(1e-12)
+            .sqrt();
+        let dot = |d: [f64; 3]| (0..3).map(|a| grad_g[a] * d[a]).sum::<f64>();
+        let up = dot(self.up);
+        [
+            self.magnitude * (dot(self.east) + self.h[0] / c * up),
+            self.magnitude * (dot(self.north) + self.h[1] / c * up),
+        ]
+    }
+}
+
+/// Whether `physics` has a tilt to learn (its Adam group needs a rate).
+pub fn has_tilt(physics: &PhysicsConfig) -> bool {
+    Tilt::of(physics).is_some()
+}
+
+/// Appends the groups of the switched-on effects of `physics` to `params`
+/// and their gradients to `grads` (in the same order).
+pub fn add_groups(
+    physics: &PhysicsConfig,
+    effect_grads: &EffectGrads,
+    params: ParamSet,
+    grads: ParamSet,
+) -> Result<(ParamSet, ParamSet), OptimError> {
+    let (logs, log_grads): (Vec<f64>, Vec<f64>) = switched_on(&physics.effects)
+        .map(|c| {
+            let value = (c.read)(&physics.effects);
+            (value.ln(), value * (c.gradient)(effect_grads))
+        })
+        .unzip();
+    let (mut params, mut grads) = (params, grads);
+    if !logs.is_empty() {
+        params = params.with_group(EFFECTS_GROUP, logs)?;
+        grads = grads.with_group(EFFECTS_GROUP, log_grads)?;
+    }
+    if let Some(tilt) = Tilt::of(physics) {
+        params = params.with_group(TILT_GROUP, tilt.h.to_vec())?;
+        grads = grads.with_group(TILT_GROUP, tilt.gradient(effect_grads.gravity).to_vec())?;
+    }
+    Ok((params, grads))
+}
+
+/// Writes the stepped groups of [`add_groups`] back into `physics`.
+pub fn write_back(physics: &mut PhysicsConfig, params: &ParamSet) {
+    if let Some(logs) = params.get(EFFECTS_GROUP) {
+        let on: Vec<&Coefficient> = switched_on(&physics.effects).collect();
+        for (c, log) in on.into_iter().zip(logs) {
+            (c.write)(&mut physics.effects, log.exp());
+        }
+    }
+    if let (Some(tilt), Some(h)) = (Tilt::of(physics), params.get(TILT_GROUP))
+        && h.len() == 2
+    {
+        physics.gravity = tilt.gravity([h[0], h[1]]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tilted(h: [f64; 2]) -> PhysicsConfig {
+        let mut physics = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
+        let tilt = Tilt {
+            up: [0.0, 0.0, 1.0],
+            east: [1.0, 0.0, 0.0],
+            north: [0.0, 1.0, 0.0],
+            magnitude: 9.81,
+            h,
+        };
+        physics.gravity = tilt.gravity(h);
+        physics
+    }
+
+    #[test]
+    fn tilt_round_trips_through_its_components() {
+        let physics = tilted([0.08, -0.05]);
+        let tilt = Tilt::of(&physics).expect("tilted");
+        assert!((tilt.h[0] - 0.08).abs() < 1e-12 && (tilt.h[1] + 0.05).abs() < 1e-12);
+        assert!((tilt.magnitude - 9.81).abs() < 1e-12);
+        assert!(Tilt::of(&tilted([0.0, 0.0])).is_none(), "untilted is off");
+    }
+
+    /// ∂L/∂h by the chain rule against central differences of a linear
+    /// L(g) = a·g through the map h ↦ g; FD step 1e-6 on components
+    /// ≈ 0.1, so 1e-8 relative leaves the O(h²) truncation far below.
+    #[test]
+    fn tilt_gradient_matches_finite_differences() {
+        const FD_RTOL: f64 = 1e-8;
+        let a = [0.3, -1.2, 0.7];
+        let physics = tilted([0.08, -0.05]);
+        let tilt = Tilt::of(&physics).expect("tilted");
+        let analytic = tilt.gradient(a);
+        for k in 0..2 {
+            let loss = |d: f64| {
+                let mut h = tilt.h;
+                h[k] += d;
+                let g = tilt.gravity(h);
+                (0..3).map(|i| a[i] * g[i]).sum::<f64>()
+            };
+            let numeric = (loss(1e-6) - loss(-1e-6)) / 2e-6;
+            let rel = (analytic[k] - numeric).abs() / numeric.abs();
+            assert!(rel < FD_RTOL, "h[{k}]: {} vs {numeric}", analytic[k]);
+        }
+    }
+
+    #[test]
+    fn groups_round_trip_and_untouched_effects_stay_off() {
+        let mut physics = tilted([0.1, 0.0]);
+        physics.effects.air_drag_quadratic = 150.0;
+        let (params, grads) = add_groups(
+            &physics,
+            &EffectGrads::default(),
+            ParamSet::new(),
+            ParamSet::new(),
+        )
+        .expect("groups");
+        assert_eq!(params.get(EFFECTS_GROUP).map(<[f64]>::len), Some(1));
+        assert_eq!(grads.get(TILT_GROUP).map(<[f64]>::len), Some(2));
+        let before = physics.clone();
+        write_back(&mut physics, &params);
+        assert!((physics.effects.air_drag_quadratic - 150.0).abs() < 1e-9);
+        assert_eq!(physics.effects.air_drag_linear, 0.0);
+        for a in 0..3 {
+            assert!((physics.gravity[a] - before.gravity[a]).abs() < 1e-12);
+        }
+    }
+}

@@ -6,6 +6,10 @@ mod common;
 use dm_fit::run::{run_fit, run_fit_from};
 use dm_model::WorldModel;
 
+fn norm(v: [f64; 3]) -> f64 {
+    v.iter().map(|c| c * c).sum::<f64>().sqrt()
+}
+
 fn saved(dir: &std::path::Path) -> WorldModel {
     dm_bundle::read_json(&dir.join("model.json")).expect("model.json")
 }
@@ -133,13 +137,7 @@ fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
     let (tilt, azimuth) = (angle("tilt_deg"), angle("azimuth_deg"));
     let up = model.physics.floor.as_ref().expect("floor").up;
     let (east, north) = dm_mpm::config::horizontal_basis(up);
-    let g = model
-        .physics
-        .gravity
-        .iter()
-        .map(|c| c * c)
-        .sum::<f64>()
-        .sqrt();
+    let g = norm(model.physics.gravity);
     let gravity_at = |azimuth: f64| -> [f64; 3] {
         std::array::from_fn(|a| {
             g * (tilt.sin() * (azimuth.cos() * east[a] + azimuth.sin() * north[a])
@@ -147,12 +145,7 @@ fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
         })
     };
     let hidden = gravity_at(azimuth);
-    let miss = |gravity: [f64; 3]| {
-        (0..3)
-            .map(|a| (gravity[a] - hidden[a]).powi(2))
-            .sum::<f64>()
-            .sqrt()
-    };
+    let miss = |gravity: [f64; 3]| norm(std::array::from_fn(|a| gravity[a] - hidden[a]));
     model.physics.gravity = gravity_at(azimuth + 60f64.to_radians());
     let before = miss(model.physics.gravity);
     let fitted = fit_three_steps(&bundle, model, &dir.path().join("tilt"));
@@ -161,12 +154,6 @@ fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
         after < 0.8 * before,
         "gravity off the hidden by {before:.3} m/s² before, {after:.3} after"
     );
-    let magnitude = fitted
-        .physics
-        .gravity
-        .iter()
-        .map(|c| c * c)
-        .sum::<f64>()
-        .sqrt();
+    let magnitude = norm(fitted.physics.gravity);
     assert!((magnitude - g).abs() < 1e-9, "|g| kept: {magnitude}");
 }

@@ -65,6 +65,16 @@ fn world() -> World<f64> {
     w
 }
 
+/// A random loss direction on positions and velocities only.
+fn position_velocity_probe(rng: &mut ChaCha8Rng, n: usize) -> ParticleGrads<f64> {
+    ParticleGrads {
+        x: (0..n).map(|_| rand_vec(rng, 1.0)).collect(),
+        v: (0..n).map(|_| rand_vec(rng, 1.0)).collect(),
+        f: vec![Mat3::zeros(); n],
+        c: vec![Mat3::zeros(); n],
+    }
+}
+
 fn loss(state: &Particles<f64>, probe: &ParticleGrads<f64>) -> f64 {
     (0..state.len())
         .map(|p| {
@@ -215,12 +225,7 @@ fn issue3_velocity_correction_after_a_frame_matches_finite_differences() {
     let start = w.state();
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let probe = ParticleGrads {
-        x: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
-        v: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
-        f: vec![Mat3::zeros(); n],
-        c: vec![Mat3::zeros(); n],
-    };
+    let probe = position_velocity_probe(&mut rng, n);
     let mut correction: Vec<[f64; 3]> = (0..n).map(|_| rand_vec(&mut rng, 0.05).into()).collect();
     // Far enough down to leave the domain: the clip must hold it.
     correction[0][2] = -20.0;
@@ -304,12 +309,7 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
     let start = w.state();
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let probe = ParticleGrads {
-        x: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
-        v: (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect(),
-        f: vec![Mat3::zeros(); n],
-        c: vec![Mat3::zeros(); n],
-    };
+    let probe = position_velocity_probe(&mut rng, n);
     let tape = w
         .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
         .expect("taped frame");

@@ -396,8 +396,14 @@ fn fit_stages(
                     };
                     // The residual stage's Adam holds the network's group
                     // only; it starts fresh, and so does the stage after it.
+                    // (A learnt tilt has its own rate: not in the residual
+                    // stage's Adam, whose parameters hold no tilt group.)
                     if residual_stage_runs && previous != Stage::Material1 {
-                        state.adam = material_config(options, 0).adam(&state.model)?;
+                        let config = MaterialFitConfig {
+                            freeze_material: state.stage == Stage::Residual,
+                            ..material_config(options, 0)
+                        };
+                        state.adam = config.adam(&state.model)?;
                     }
                     state.iteration = 0;
                 }

@@ -157,3 +157,20 @@ fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
     let magnitude = norm(fitted.physics.gravity);
     assert!((magnitude - g).abs() < 1e-9, "|g| kept: {magnitude}");
 }
+
+/// Issue 6: a tilted start through every stage, the residual-only one
+/// included (its Adam holds the network's group alone, so the tilt's own
+/// rate must stay out of it).
+#[test]
+fn issue6_tilted_start_fits_through_the_residual_stage() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let bundle = common::tiny_rope(dir.path());
+    let mut options = common::fit_options(&["--residual", "pgnd"]);
+    options.residual_iters = 1;
+    let mut start = WorldModel::from_bundle(&bundle, &options.model).expect("start");
+    let g = norm(start.physics.gravity);
+    start.physics.gravity = [0.1 * g, 0.0, -(0.99f64).sqrt() * g];
+    let out = dir.path().join("tilted");
+    run_fit_from(&bundle, &options, start, &out, &mut |_| {}).expect("fit with a residual stage");
+    assert!((norm(saved(&out).physics.gravity) - g).abs() < 1e-9);
+}

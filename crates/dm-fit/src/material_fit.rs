@@ -196,7 +196,8 @@ pub struct LossGradients {
     /// L_dyn of each predicted frame 1, 2, … (before the step; without the
     /// regulariser and the extra term), for [`late_frames_loss`].
     pub frame_losses: Vec<f64>,
-    /// The effect coefficients (zero where an effect is off).
+    /// Gradients of the effect terms (drag, viscosity, gravity), summed
+    /// over the differentiated frames.
     pub effects: EffectGrads,
 }
 

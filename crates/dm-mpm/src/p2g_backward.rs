@@ -3,7 +3,9 @@
 //!
 //! Forward: m_i = Σ w m_p, P_i = Σ w (q_p + A_p (x_i − x_p)).
 //! Backward (given P̄_i, m̄_i): q̄ = Σ w P̄, Ā = Σ w P̄ (x_i − x_p)ᵀ,
-//! x̄ += Σ ∇w (P̄·(q + A (x_i − x_p)) + m̄ m_p) − Σ w Aᵀ P̄.
+//! x̄ += Σ ∇w (P̄·(q + A (x_i − x_p)) + m̄ m_p) − Σ w Aᵀ P̄,
+//! m̄_p = Σ w m̄ (the mass's own scatter; its share in q and A is
+//! `stress_backward.rs`'s).
 
 use crate::grid::{gather_moments, stencil};
 use crate::real::{Lane4, Mat3, Real, Vec3};
@@ -11,12 +13,14 @@ use crate::state::Consts;
 use crate::stress::{ImpulseInputs, particle_impulse};
 
 /// Adjoint of one particle's scatter: its affine matrix, momentum and the
-/// position (through the weights and node offsets).
+/// position (through the weights and node offsets), and the mass through
+/// the node masses.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ScatterGrads<T> {
     pub affine: Mat3<T>,
     pub momentum: Vec3<T>,
     pub x: Vec3<T>,
+    pub mass: T,
 }
 
 /// VJP of particle `p`'s contribution to `p2g`, given the adjoint of the
@@ -61,5 +65,6 @@ pub fn p2g_particle_vjp<T: Real>(
         affine: grad_a,
         momentum: grad_q,
         x: grad_x,
+        mass: mo.sum.to_array()[3],
     }
 }

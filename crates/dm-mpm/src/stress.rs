@@ -43,6 +43,18 @@ pub fn particle_impulse<T: Real>(
     let stress_scale = -k.dt * T::lit(4.0) * k.inv_dx * k.inv_dx * particles.volume[p];
     let c = &particles.c[p];
     let affine = kirchhoff * stress_scale + c * mass;
+    (affine, (v + accel(k, inputs, p, &v) * k.dt) * mass)
+}
+
+/// The acceleration of particle `p` (velocity `v`) besides stress and
+/// gravity: the actuators' and air drag.
+#[inline(always)]
+pub(crate) fn accel<T: Real>(
+    k: &Consts<T>,
+    inputs: &ImpulseInputs<'_, T>,
+    p: usize,
+    v: &Vec3<T>,
+) -> Vec3<T> {
     let mut accel = Vec3::zeros();
     if let Some(ext) = inputs.external_accel {
         accel += ext[p];
@@ -50,5 +62,5 @@ pub fn particle_impulse<T: Real>(
     if k.drag_linear != T::zero() || k.drag_quadratic != T::zero() {
         accel -= v * (k.drag_linear + k.drag_quadratic * v.norm());
     }
-    (affine, (v + accel * k.dt) * mass)
+    accel
 }

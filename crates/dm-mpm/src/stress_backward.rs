@@ -6,7 +6,7 @@
 use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
 use crate::real::{Mat3, Real, Vec3};
 use crate::state::Consts;
-use crate::stress::ImpulseInputs;
+use crate::stress::{ImpulseInputs, accel};
 
 /// Adjoint of one particle's impulse with respect to its inputs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -23,6 +23,9 @@ pub struct ImpulseGrads<T> {
     /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic)]`; a parameter's
     /// gradient is the sum over particles (issue 6).
     pub effects: [T; 2],
+    /// Adjoint of the particle's mass (a density gradient's parameter):
+    /// `Ā : C + M̄ · (v + dt a)`.
+    pub mass: T,
 }
 
 /// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
@@ -68,6 +71,8 @@ pub fn particle_impulse_vjp<T: Real>(
         }
     }
     let grad_c = grad_affine * mass;
+    let grad_mass = grad_affine.component_mul(&particles.c[p]).sum()
+        + grad_momentum.dot(&(v + accel(k, inputs, p, &v) * k.dt));
     ImpulseGrads {
         v: grad_v,
         f: kg.f,
@@ -81,5 +86,6 @@ pub fn particle_impulse_vjp<T: Real>(
             Vec3::zeros()
         },
         effects,
+        mass: grad_mass,
     }
 }

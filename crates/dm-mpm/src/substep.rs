@@ -99,6 +99,8 @@ pub struct SubstepGrads<T> {
     pub viscosity: T,
     /// Adjoint of the gravity vector (a ground tilt's parameter).
     pub gravity: Vec3<T>,
+    /// Adjoint of each particle's mass (a density gradient's parameter).
+    pub mass: Vec<T>,
 }
 
 /// Accumulated wall time per solver stage (for benchmarks).
@@ -186,6 +188,7 @@ impl<T: Real> SubstepGrads<T> {
             effects: vec![[T::zero(); 2]; n],
             viscosity: T::zero(),
             gravity: Vec3::zeros(),
+            mass: vec![T::zero(); n],
         }
     }
 
@@ -202,6 +205,7 @@ impl<T: Real> SubstepGrads<T> {
         self.weights.resize(n, [T::zero(); 3]);
         self.external_accel.resize(n, Vec3::zeros());
         self.effects.resize(n, [T::zero(); 2]);
+        self.mass.resize(n, T::zero());
     }
 }
 
@@ -279,10 +283,11 @@ pub(crate) fn substep_backward_into<T: Real>(
         grads.weights.par_iter_mut(),
         grads.external_accel.par_iter_mut(),
         grads.effects.par_iter_mut(),
+        grads.mass.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga, ge))| {
+        .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga, ge, gm))| {
             let scatter = p2g_particle_vjp(k, &impulse, p, grad_pre);
             let g = particle_impulse_vjp(k, &impulse, p, &scatter.affine, &scatter.momentum);
             // x and F also carry the gather's adjoint (g2p_backward); v
@@ -296,6 +301,7 @@ pub(crate) fn substep_backward_into<T: Real>(
             *gw = g.weights;
             *ga = g.external_accel;
             *ge = g.effects;
+            *gm = scatter.mass + g.mass;
         });
     Ok(())
 }

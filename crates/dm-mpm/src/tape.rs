@@ -97,6 +97,9 @@ pub struct FrameGrads<T> {
     pub gains: GainGrads,
     /// Adjoints of the effect coefficients over the differentiated window.
     pub effects: EffectGrads,
+    /// Adjoint of each particle's mass over the differentiated window
+    /// (a density gradient's parameter, issue 6).
+    pub mass: Vec<T>,
 }
 
 /// Adjoints of the learnable effect coefficients (`PhysicsConfig::effects`)
@@ -147,6 +150,7 @@ impl<T: Real> World<T> {
         let mut mu = vec![T::zero(); n];
         let mut lambda = vec![T::zero(); n];
         let mut weights = vec![[T::zero(); 3]; n];
+        let mut mass = vec![T::zero(); n];
         let mut gains = GainGrads::default();
         let mut effects = EffectGrads::default();
         let mut step = SubstepGrads::zeros(n);
@@ -211,6 +215,7 @@ impl<T: Real> World<T> {
             for p in 0..n {
                 mu[p] += step.mu[p];
                 lambda[p] += step.lambda[p];
+                mass[p] += step.mass[p];
                 for e in 0..3 {
                     weights[p][e] += step.weights[p][e];
                 }
@@ -231,6 +236,7 @@ impl<T: Real> World<T> {
             weights: self.to_caller_order(&weights),
             gains,
             effects,
+            mass: self.to_caller_order(&mass),
         })
     }
 }

@@ -172,6 +172,36 @@ fn issue3_frame_adjoint_with_actuators_matches_finite_differences() {
         l
     });
     check_gravity(&mut w, &start, &to, &probe, grads.effects.gravity);
+    check_mass(&mut w, &start, &to, &probe, &grads.mass, &mut rng);
+}
+
+/// ∂L/∂m (each particle's mass, a density gradient's parameter) along a
+/// relative direction: each mass moves by up to its own size times the
+/// step, like the other checks' steps against their scale.
+fn check_mass(
+    w: &mut World<f64>,
+    start: &Particles<f64>,
+    to: &[[f64; 3]],
+    probe: &ParticleGrads<f64>,
+    analytic: &[f64],
+    rng: &mut ChaCha8Rng,
+) {
+    let direction: Vec<f64> = start
+        .mass
+        .iter()
+        .map(|m| m * (2.0 * rng.random::<f64>() - 1.0))
+        .collect();
+    let along: f64 = analytic.iter().zip(&direction).map(|(g, d)| g * d).sum();
+    check("mass", along, &mut |h| {
+        let mut s = start.clone();
+        s.mass
+            .iter_mut()
+            .zip(&direction)
+            .for_each(|(m, d)| *m += d * h);
+        w.set_state(&s).expect("state");
+        w.step_frame(&FROM, to, &[true, true]).expect("frame");
+        loss(&w.state(), probe)
+    });
 }
 
 /// ∂L/∂g along a tilt-like direction: gravity turned a little sideways
@@ -340,6 +370,8 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
         ),
     ];
     check_gravity(&mut w, &start, &to, &probe, grads.effects.gravity);
+    // Through the viscous solve too: node masses set its cell volumes.
+    check_mass(&mut w, &start, &to, &probe, &grads.mass, &mut rng);
     w.set_effects(base.clone()).expect("effects");
     for (name, analytic, value, set) in coefficients {
         assert!(analytic != 0.0, "{name}: the frame must depend on it");

@@ -282,6 +282,22 @@ fn check_scene(seed: u64, s: Scene) {
             .zip(&dla)
             .for_each(|(m, d)| *m += d * h)
     });
+    // Masses (a density gradient's parameter, issue 6): a relative
+    // direction, so the FD_STEP step changes each 1e-4 kg mass by 1e-6 of
+    // itself, like the other inputs' steps against their scale.
+    let dmass: Vec<f64> = s
+        .particles
+        .mass
+        .iter()
+        .map(|m| m * uniform(&mut rng, -1.0, 1.0))
+        .collect();
+    check("mass", &s, &probe, dots(&grads.mass, &dmass), &|t, h| {
+        t.particles
+            .mass
+            .iter_mut()
+            .zip(&dmass)
+            .for_each(|(m, d)| *m += d * h)
+    });
     check(
         "external_accel",
         &s,

@@ -125,7 +125,8 @@ fn params(pairs: &[(&str, f64)]) -> BTreeMap<String, f64> {
 }
 
 /// `parameters` with the terms a fit learns beside the material (drag and
-/// viscosity coefficients, the tilt; `dm_fit::learnt_effects`) read back from the
+/// viscosity coefficients, the tilt, a stiff ball's factor, a density
+/// gradient's excess; `dm_fit::learnt_effects`) read back from the
 /// fitted `model` that carries them. Other candidates' parameters are
 /// kept as tried.
 pub fn with_learnt_parameters(
@@ -140,6 +141,18 @@ pub fn with_learnt_parameters(
             ("quadratic_per_m", effects.air_drag_quadratic),
         ],
         Candidate::ViscousDamping => vec![("viscosity_pa_s", effects.viscosity)],
+        Candidate::StiffInclusion => model
+            .extension
+            .stiff_ball
+            .as_ref()
+            .map(|ball| vec![("stiffness_factor", ball.factor)])
+            .unwrap_or_default(),
+        Candidate::DensityVariation => model
+            .extension
+            .density
+            .as_ref()
+            .map(|density| vec![("heavy_end_excess", density.excess)])
+            .unwrap_or_default(),
         Candidate::GroundTilt => match &model.physics.floor {
             Some(floor) => {
                 let g = model.physics.gravity;
@@ -224,10 +237,7 @@ pub fn apply(
             // 3.3× heavy end read as E 2.3× too low, seed 1009): the base
             // density is lowered by the mean factor, so the gradient
             // redistributes the fitted mass instead of adding to it.
-            if let Some(factors) = model.extension.density_factors(&model.particles) {
-                let mean = factors.iter().sum::<f64>() / factors.len().max(1) as f64;
-                model.physics.density /= mean;
-            }
+            model.physics.density /= model.extension.mean_density_factor(&model.particles);
         }
     }
     model

@@ -91,7 +91,8 @@ fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
 
 /// Issue 6: what a candidate's fit learnt is read back from the fitted
 /// model in the trial's own terms (a tilt's angle and azimuth, a drag's
-/// coefficient), so `effect_parameters` reports the learnt values.
+/// coefficient, a stiff ball's factor, a density excess), so
+/// `effect_parameters` reports the learnt values.
 #[test]
 fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -116,4 +117,16 @@ fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
     fitted.physics.effects.air_drag_quadratic = 97.0;
     let learnt = with_learnt_parameters(Candidate::AirDrag, &drag, &fitted);
     assert_eq!(learnt, tried(&[("quadratic_per_m", 97.0)]), "no key added");
+    // The extension's terms: a stiff ball's factor, a density excess.
+    let ball = tried(&[("stiffness_factor", 8.0), ("radius_m", 0.02)]);
+    let mut fitted = apply(&model, Candidate::StiffInclusion, &ball);
+    fitted.extension.stiff_ball.as_mut().expect("ball").factor = 11.5;
+    let learnt = with_learnt_parameters(Candidate::StiffInclusion, &ball, &fitted);
+    assert_eq!(learnt["stiffness_factor"], 11.5);
+    assert_eq!(learnt["radius_m"], 0.02);
+    let density = tried(&[("heavy_end_excess", -2.5), ("axis_x", 1.0)]);
+    let mut fitted = apply(&model, Candidate::DensityVariation, &density);
+    fitted.extension.density.as_mut().expect("gradient").excess = -3.4;
+    let learnt = with_learnt_parameters(Candidate::DensityVariation, &density, &fitted);
+    assert_eq!(learnt["heavy_end_excess"], -3.4);
 }

@@ -1,7 +1,8 @@
 //! Effect terms a fit learns beside the material (issue 6): the drag and
-//! viscosity coefficients and a ground tilt, where the start model has
-//! them switched on. A fit from a bundle has none on and learns none;
-//! `dm-diagnose` starts its candidates' fits with one on.
+//! viscosity coefficients, a ground tilt, a stiff ball's factor and a
+//! density gradient's excess, where the start model has them switched on.
+//! A fit from a bundle has none on and learns none; `dm-diagnose` starts
+//! its candidates' fits with one on.
 //!
 //! * Coefficients (linear and quadratic drag, viscosity) are stepped as
 //!   natural logs: they stay positive and each step is relative (drag
@@ -12,11 +13,20 @@
 //!   with c = √(1 − |h|²), so ∂g/∂h_e = |g| (e + (h_e/c) up). Its Adam rate
 //!   is [`TILT_RATE_FACTOR`] × the material rate: at 0.1 a step would turn
 //!   gravity by ≈ 6°, as much as a whole hidden tilt.
+//! * A stiff ball's factor is stepped as its log, at the material rate
+//!   (it spans 8–15 in the tests' draws).
+//! * A density gradient's excess a (heavy end 1 + |a| times the light
+//!   end) is stepped as itself, total mass kept, at [`DENSITY_RATE_FACTOR`]
+//!   × the material rate: the tests' draws span 2–4 and a quick fit has
+//!   four steps.
 //!
-//! The gradients are the frame adjoint's `EffectGrads` (dm-mpm `tape.rs`;
-//! f64 finite-difference tests in `crates/dm-mpm/tests/gradients_frame.rs`).
+//! The gradients are the frame adjoint's `EffectGrads` and mass adjoints
+//! (dm-mpm `tape.rs`; f64 finite-difference tests in
+//! `crates/dm-mpm/tests/gradients_frame.rs`), chained to the extension's
+//! parameters by `dm_model::extension` (its own FD tests).
 
 use crate::optim::{OptimError, ParamSet};
+use dm_model::WorldModel;
 use dm_mpm::config::horizontal_basis;
 use dm_mpm::tape::EffectGrads;
 use dm_mpm::{Effects, PhysicsConfig};
@@ -27,6 +37,13 @@ pub const EFFECTS_GROUP: &str = "effects_log";
 pub const TILT_GROUP: &str = "gravity_tilt";
 /// The tilt's Adam rate relative to the material rate (module docs).
 pub const TILT_RATE_FACTOR: f64 = 0.2;
+/// Adam's group of a stiff ball's log factor.
+pub const STIFFNESS_GROUP: &str = "stiff_ball_log_factor";
+/// Adam's group of a density gradient's excess.
+pub const DENSITY_GROUP: &str = "density_excess";
+/// The density excess's Adam rate relative to the material rate (module
+/// docs): 0.3 per step at the default 0.1.
+pub const DENSITY_RATE_FACTOR: f64 = 3.0;
 /// Below this |h| (≈ 0.006°) gravity counts as untilted: the tilt is off.
 const TILT_OFF: f64 = 1e-4;
 
@@ -111,14 +128,51 @@ impl Tilt {
     }
 }
 
-/// Whether `physics` has a tilt to learn (its Adam group needs a rate).
-pub fn has_tilt(physics: &PhysicsConfig) -> bool {
-    Tilt::of(physics).is_some()
+/// Gradients of the extension terms a fit learns (`dm_model::extension`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ExtensionGrads {
+    /// ∂L/∂ln(factor) of a stiff ball.
+    pub stiffness_log_factor: f64,
+    /// ∂L/∂excess of a density gradient, total mass kept.
+    pub density_excess: f64,
 }
 
-/// Appends the groups of the switched-on effects of `physics` to `params`
+/// Adam's rates of the learnt groups that do not step at the material
+/// rate, for `model` with material rate `learning_rate`.
+pub fn group_rates(model: &WorldModel, learning_rate: f64) -> Vec<(&'static str, f64)> {
+    let mut rates = Vec::new();
+    if Tilt::of(&model.physics).is_some() {
+        rates.push((TILT_GROUP, TILT_RATE_FACTOR * learning_rate));
+    }
+    if model.extension.density.is_some() {
+        rates.push((DENSITY_GROUP, DENSITY_RATE_FACTOR * learning_rate));
+    }
+    rates
+}
+
+/// Appends the groups of the switched-on effects of `model` to `params`
 /// and their gradients to `grads` (in the same order).
 pub fn add_groups(
+    model: &WorldModel,
+    effect_grads: &EffectGrads,
+    extension_grads: &ExtensionGrads,
+    params: ParamSet,
+    grads: ParamSet,
+) -> Result<(ParamSet, ParamSet), OptimError> {
+    let (mut params, mut grads) = add_physics_groups(&model.physics, effect_grads, params, grads)?;
+    if let Some(ball) = &model.extension.stiff_ball {
+        params = params.with_group(STIFFNESS_GROUP, vec![ball.factor.ln()])?;
+        grads = grads.with_group(STIFFNESS_GROUP, vec![extension_grads.stiffness_log_factor])?;
+    }
+    if let Some(density) = &model.extension.density {
+        params = params.with_group(DENSITY_GROUP, vec![density.excess])?;
+        grads = grads.with_group(DENSITY_GROUP, vec![extension_grads.density_excess])?;
+    }
+    Ok((params, grads))
+}
+
+/// [`add_groups`]' groups of the terms in `physics` (drag, viscosity, tilt).
+fn add_physics_groups(
     physics: &PhysicsConfig,
     effect_grads: &EffectGrads,
     params: ParamSet,
@@ -142,8 +196,26 @@ pub fn add_groups(
     Ok((params, grads))
 }
 
-/// Writes the stepped groups of [`add_groups`] back into `physics`.
-pub fn write_back(physics: &mut PhysicsConfig, params: &ParamSet) {
+/// Writes the stepped groups of [`add_groups`] back into `model`.
+pub fn write_back(model: &mut WorldModel, params: &ParamSet) {
+    write_back_physics(&mut model.physics, params);
+    if let (Some(ball), Some(&[log])) = (
+        model.extension.stiff_ball.as_mut(),
+        params.get(STIFFNESS_GROUP),
+    ) {
+        // The ball stays at least as stiff as the rest (the candidate's
+        // model: a stiffer region).
+        ball.factor = log.exp().max(1.0);
+    }
+    if let Some(&[excess]) = params.get(DENSITY_GROUP) {
+        model
+            .extension
+            .set_density_excess(&model.particles, excess, &mut model.physics.density);
+    }
+}
+
+/// [`write_back`] of the terms in `physics`.
+fn write_back_physics(physics: &mut PhysicsConfig, params: &ParamSet) {
     if let Some(logs) = params.get(EFFECTS_GROUP) {
         let on: Vec<&Coefficient> = switched_on(&physics.effects).collect();
         for (c, log) in on.into_iter().zip(logs) {
@@ -210,7 +282,7 @@ mod tests {
     fn groups_round_trip_and_untouched_effects_stay_off() {
         let mut physics = tilted([0.1, 0.0]);
         physics.effects.air_drag_quadratic = 150.0;
-        let (params, grads) = add_groups(
+        let (params, grads) = add_physics_groups(
             &physics,
             &EffectGrads::default(),
             ParamSet::new(),
@@ -220,7 +292,7 @@ mod tests {
         assert_eq!(params.get(EFFECTS_GROUP).map(<[f64]>::len), Some(1));
         assert_eq!(grads.get(TILT_GROUP).map(<[f64]>::len), Some(2));
         let before = physics.clone();
-        write_back(&mut physics, &params);
+        write_back_physics(&mut physics, &params);
         assert!((physics.effects.air_drag_quadratic - 150.0).abs() < 1e-9);
         assert_eq!(physics.effects.air_drag_linear, 0.0);
         for a in 0..3 {

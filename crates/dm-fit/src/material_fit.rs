@@ -10,7 +10,7 @@
 //! carried from frame to frame (truncated BPTT); the per-particle
 //! material gradients go back to the patches, and Adam takes a clipped step.
 
-use crate::learnt_effects;
+use crate::learnt_effects::{self, ExtensionGrads};
 use crate::loss::{
     LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
     frame_loss,
@@ -86,11 +86,10 @@ impl MaterialFitConfig {
                 .group_learning_rates
                 .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
         }
-        if self.learn_effects && !self.freeze_material && learnt_effects::has_tilt(&model.physics) {
-            config.group_learning_rates.insert(
-                learnt_effects::TILT_GROUP.into(),
-                learnt_effects::TILT_RATE_FACTOR * self.learning_rate,
-            );
+        if self.learn_effects && !self.freeze_material {
+            for (group, rate) in learnt_effects::group_rates(model, self.learning_rate) {
+                config.group_learning_rates.insert(group.into(), rate);
+            }
         }
         Adam::new(config)
     }
@@ -199,6 +198,8 @@ pub struct LossGradients {
     /// Gradients of the effect terms (drag, viscosity, gravity), summed
     /// over the differentiated frames.
     pub effects: EffectGrads,
+    /// Gradients of the model extension's stiff ball and density gradient.
+    pub extension: ExtensionGrads,
 }
 
 /// Share of the fitted frames, at their end, that [`late_frames_loss`]
@@ -291,6 +292,7 @@ pub fn loss_and_gradient(
     let mut grad_weights = vec![[0.0f32; 3]; n];
     let mut grad_residual = network.as_ref().map(|net| vec![0.0; net.parameter_count()]);
     let mut grad_effects = EffectGrads::default();
+    let mut grad_mass = vec![0.0f64; n];
     for t in (0..steps).rev() {
         for (c, g) in carried.x.iter_mut().zip(&frame_grads[t]) {
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
@@ -318,6 +320,9 @@ pub fn loss_and_gradient(
         }
         let g = world.backward_frame(&tape, &carried)?;
         grad_effects += g.effects;
+        for (sum, g) in grad_mass.iter_mut().zip(&g.mass) {
+            *sum += f64::from(*g);
+        }
         for p in 0..n {
             grad_mu[p] += g.mu[p];
             grad_lambda[p] += g.lambda[p];
@@ -332,6 +337,19 @@ pub fn loss_and_gradient(
             }
         }
     }
+    let extension = &model.extension;
+    let masses: Vec<f64> = world.state().mass.iter().map(|m| f64::from(*m)).collect();
+    let grad_extension = ExtensionGrads {
+        stiffness_log_factor: extension.stiffness_log_factor_gradient(
+            &model.particles,
+            &model.particle_material(),
+            &grad_mu,
+            &grad_lambda,
+        ),
+        density_excess: extension.density_excess_gradient(&model.particles, &masses, &grad_mass),
+    };
+    // The fitted fields are the material before the stiff ball scales it.
+    extension.base_material_grads(&model.particles, &mut grad_mu, &mut grad_lambda);
     let mut grads = model.patches.particle_material_vjp(
         &model.params,
         &model.bounds,
@@ -350,6 +368,7 @@ pub fn loss_and_gradient(
             residual: grad_residual,
             frame_losses,
             effects: grad_effects,
+            extension: grad_extension,
         },
     ))
 }
@@ -408,7 +427,7 @@ pub fn material_step(
     if learn_effects {
         // Physics groups like E: clipped per group and globally with it.
         (params, all_grads) =
-            learnt_effects::add_groups(&model.physics, &grads.effects, params, all_grads)?;
+            learnt_effects::add_groups(model, &grads.effects, &grads.extension, params, all_grads)?;
     }
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
@@ -437,7 +456,7 @@ pub fn material_step(
         from_param_set(&params, &mut model.params);
     }
     if learn_effects {
-        learnt_effects::write_back(&mut model.physics, &params);
+        learnt_effects::write_back(model, &params);
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

@@ -174,3 +174,142 @@ fn issue6_tilted_start_fits_through_the_residual_stage() {
     run_fit_from(&bundle, &options, start, &out, &mut |_| {}).expect("fit with a residual stage");
     assert!((norm(saved(&out).physics.gravity) - g).abs() < 1e-9);
 }
+
+/// The tiny rope with a density gradient hidden (excess [`HIDDEN_EXCESS`])
+/// and its truth start with the hidden gradient's axis and heavy end
+/// carrying `excess` (the sign taken care of), its total mass the truth's.
+fn density_start(dir: &std::path::Path) -> (dm_bundle::Bundle, impl Fn(f64) -> WorldModel) {
+    let (bundle, truth, truth_start) =
+        truth_start(dir, &format!("density_variation:{HIDDEN_EXCESS}"));
+    let params = &truth.effect.as_ref().expect("hidden effect").params;
+    let axis_index = params["axis"].as_u64().expect("axis") as usize;
+    let sign = if params["heavy_at_max"].as_bool().expect("heavy end") {
+        1.0
+    } else {
+        -1.0
+    };
+    let mut axis = [0.0; 3];
+    axis[axis_index] = 1.0;
+    let with_excess = move |excess: f64| dm_model::ModelExtension {
+        density: Some(dm_model::extension::DensityGradient {
+            axis,
+            excess: sign * excess,
+        }),
+        ..dm_model::ModelExtension::default()
+    };
+    let truth_mean = with_excess(HIDDEN_EXCESS).mean_density_factor(&truth_start.particles);
+    let start = move |excess: f64| {
+        let mut model = truth_start.clone();
+        model.extension = with_excess(excess);
+        model.physics.density *= truth_mean / model.extension.mean_density_factor(&model.particles);
+        model
+    };
+    (bundle, start)
+}
+
+const HIDDEN_EXCESS: f64 = 3.0;
+
+/// Issue 6: a fit started with the hidden density gradient's axis and
+/// heavy end but a third of its excess moves the excess toward the hidden
+/// one. (From above it would not: on this clip the training loss keeps
+/// falling past the hidden excess, 8.26e-5 m² at 3 and 8.15e-5 at 5, as it
+/// rises with drag whatever drag is hidden.)
+#[test]
+fn issue6_learnt_density_excess_moves_toward_the_hidden_gradient() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, start) = density_start(dir.path());
+    let from = HIDDEN_EXCESS / 3.0;
+    let fitted = fit_three_steps(&bundle, start(from), &dir.path().join("density"));
+    let excess = fitted
+        .extension
+        .density
+        .as_ref()
+        .expect("kept")
+        .excess
+        .abs();
+    assert!(
+        (excess - HIDDEN_EXCESS).abs() < (from - HIDDEN_EXCESS).abs() - 0.1,
+        "started at {from}, ended at {excess}, hidden {HIDDEN_EXCESS}"
+    );
+}
+
+/// Issue 6: the fit's gradients of the extension's parameters (a density
+/// gradient's excess, total mass kept; a stiff ball's log factor) against
+/// central differences of the training loss, full window. The world runs
+/// in f32: the loss (≈ 8e-5 m²) moves by ≈ 1e-7 over the steps below, and
+/// f32 rounding of positions leaves ≈ 1e-3 of that as noise, hence
+/// `LOSS_FD_RTOL` (measured: 0.2 % for the excess, 0.1 % for the ball).
+/// The ball is twice as stiff: at 4–8× the stiffest P-wave outruns the
+/// substep and `World::new` refines it, a jump in the loss every few
+/// percent of the factor that a finite difference would straddle (the
+/// analytic gradient is that of a fixed substep count); the check asserts
+/// that its three worlds share one.
+#[test]
+fn issue6_extension_gradients_match_finite_differences_of_the_train_loss() {
+    const LOSS_FD_RTOL: f64 = 0.02;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, start) = density_start(dir.path());
+    let frames = dm_fit::material_fit::fit_frames(
+        &bundle,
+        &dm_fit::material_fit::MaterialFitConfig::default(),
+    );
+    let loss_and_gradient = |model: &WorldModel| {
+        dm_fit::material_fit::loss_and_gradient(model, &bundle, frames, usize::MAX, None)
+            .expect("loss")
+    };
+    let substeps = |model: &WorldModel| model.world().expect("world").config().substeps_per_frame;
+    let check = |name: &str, analytic: f64, minus: f64, plus: f64, step: f64| {
+        let numeric = (plus - minus) / (2.0 * step);
+        let rel = (analytic - numeric).abs() / numeric.abs();
+        assert!(
+            rel < LOSS_FD_RTOL,
+            "{name}: {analytic:e} vs finite differences {numeric:e}"
+        );
+    };
+    let step = 0.05;
+    let at = |excess: f64| loss_and_gradient(&start(excess)).0;
+    let (_, grads) = loss_and_gradient(&start(HIDDEN_EXCESS));
+    for d in [-step, step] {
+        assert_eq!(
+            substeps(&start(HIDDEN_EXCESS + d)),
+            substeps(&start(HIDDEN_EXCESS))
+        );
+    }
+    let sign = start(1.0).extension.density.expect("gradient").excess;
+    check(
+        "density excess",
+        sign * grads.extension.density_excess,
+        at(HIDDEN_EXCESS - step),
+        at(HIDDEN_EXCESS + step),
+        step,
+    );
+
+    let mut model = start(0.0);
+    model.extension.density = None;
+    let centre = model.particles[model.particles.len() / 2];
+    let with_ball = |log_factor: f64| {
+        let mut m = model.clone();
+        m.extension.stiff_ball = Some(dm_model::extension::StiffBall {
+            centre,
+            radius: 0.03,
+            factor: log_factor.exp(),
+        });
+        m
+    };
+    let log_factor = 2f64.ln();
+    let (_, grads) = loss_and_gradient(&with_ball(log_factor));
+    let step = 0.05;
+    for d in [-step, step] {
+        assert_eq!(
+            substeps(&with_ball(log_factor + d)),
+            substeps(&with_ball(log_factor))
+        );
+    }
+    check(
+        "stiff ball ln factor",
+        grads.extension.stiffness_log_factor,
+        loss_and_gradient(&with_ball(log_factor - step)).0,
+        loss_and_gradient(&with_ball(log_factor + step)).0,
+        step,
+    );
+}

@@ -18,7 +18,10 @@
 //! * A density gradient's excess a (heavy end 1 + |a| times the light
 //!   end) is stepped as itself, total mass kept, at [`DENSITY_RATE_FACTOR`]
 //!   × the material rate: the tests' draws span 2–4 and a quick fit has
-//!   four steps.
+//!   four steps. Its axis is stepped as its three components, renormalised
+//!   after each step, at [`DENSITY_AXIS_RATE_FACTOR`] × the material rate
+//!   (its gradient is perpendicular to it, so a step turns it): a square
+//!   cloth's main axis, where the trial starts, is any in-plane direction.
 //!
 //! The gradients are the frame adjoint's `EffectGrads` and mass adjoints
 //! (dm-mpm `tape.rs`; f64 finite-difference tests in
@@ -44,6 +47,12 @@ pub const DENSITY_GROUP: &str = "density_excess";
 /// The density excess's Adam rate relative to the material rate (module
 /// docs): 0.3 per step at the default 0.1.
 pub const DENSITY_RATE_FACTOR: f64 = 3.0;
+/// Adam's group of a density gradient's axis.
+pub const DENSITY_AXIS_GROUP: &str = "density_axis";
+/// The axis's Adam rate relative to the material rate: 0.2 per component
+/// per step at the default, ≈ 10° of turn, so a quick fit's four steps can
+/// turn a cloth's axis by its 45° of ambiguity.
+pub const DENSITY_AXIS_RATE_FACTOR: f64 = 2.0;
 /// Below this |h| (≈ 0.006°) gravity counts as untilted: the tilt is off.
 const TILT_OFF: f64 = 1e-4;
 
@@ -135,6 +144,9 @@ pub struct ExtensionGrads {
     pub stiffness_log_factor: f64,
     /// ∂L/∂excess of a density gradient, total mass kept.
     pub density_excess: f64,
+    /// ∂L/∂axis of a density gradient, total mass kept (perpendicular to
+    /// the axis).
+    pub density_axis: [f64; 3],
 }
 
 /// Adam's rates of the learnt groups that do not step at the material
@@ -146,6 +158,7 @@ pub fn group_rates(model: &WorldModel, learning_rate: f64) -> Vec<(&'static str,
     }
     if model.extension.density.is_some() {
         rates.push((DENSITY_GROUP, DENSITY_RATE_FACTOR * learning_rate));
+        rates.push((DENSITY_AXIS_GROUP, DENSITY_AXIS_RATE_FACTOR * learning_rate));
     }
     rates
 }
@@ -167,6 +180,8 @@ pub fn add_groups(
     if let Some(density) = &model.extension.density {
         params = params.with_group(DENSITY_GROUP, vec![density.excess])?;
         grads = grads.with_group(DENSITY_GROUP, vec![extension_grads.density_excess])?;
+        params = params.with_group(DENSITY_AXIS_GROUP, density.axis.to_vec())?;
+        grads = grads.with_group(DENSITY_AXIS_GROUP, extension_grads.density_axis.to_vec())?;
     }
     Ok((params, grads))
 }
@@ -211,6 +226,11 @@ pub fn write_back(model: &mut WorldModel, params: &ParamSet) {
         model
             .extension
             .set_density_excess(&model.particles, excess, &mut model.physics.density);
+    }
+    if let Some(&[x, y, z]) = params.get(DENSITY_AXIS_GROUP) {
+        model
+            .extension
+            .set_density_axis(&model.particles, [x, y, z], &mut model.physics.density);
     }
 }
 

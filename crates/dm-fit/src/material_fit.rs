@@ -347,6 +347,7 @@ pub fn loss_and_gradient(
             &grad_lambda,
         ),
         density_excess: extension.density_excess_gradient(&model.particles, &masses, &grad_mass),
+        density_axis: extension.density_axis_gradient(&model.particles, &masses, &grad_mass),
     };
     // The fitted fields are the material before the stiff ball scales it.
     extension.base_material_grads(&model.particles, &mut grad_mu, &mut grad_lambda);

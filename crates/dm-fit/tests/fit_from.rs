@@ -234,7 +234,7 @@ fn issue6_learnt_density_excess_moves_toward_the_hidden_gradient() {
 }
 
 /// Issue 6: the fit's gradients of the extension's parameters (a density
-/// gradient's excess, total mass kept; a stiff ball's log factor) against
+/// gradient's excess and axis, total mass kept; a stiff ball's log factor) against
 /// central differences of the training loss, full window. The world runs
 /// in f32: the loss (≈ 8e-5 m²) moves by ≈ 1e-7 over the steps below, and
 /// f32 rounding of positions leaves ≈ 1e-3 of that as noise, hence
@@ -281,6 +281,24 @@ fn issue6_extension_gradients_match_finite_differences_of_the_train_loss() {
         sign * grads.extension.density_excess,
         at(HIDDEN_EXCESS - step),
         at(HIDDEN_EXCESS + step),
+        step,
+    );
+    // The axis, turned sideways (its gradient is perpendicular to it).
+    let turned = |h: f64| {
+        let mut model = start(HIDDEN_EXCESS);
+        let density = model.extension.density.clone().expect("gradient");
+        let axis = [density.axis[0], density.axis[1] + h, density.axis[2]];
+        model
+            .extension
+            .set_density_axis(&model.particles, axis, &mut model.physics.density);
+        model
+    };
+    let step = 0.02;
+    check(
+        "density axis",
+        grads.extension.density_axis[1],
+        loss_and_gradient(&turned(-step)).0,
+        loss_and_gradient(&turned(step)).0,
         step,
     );
 

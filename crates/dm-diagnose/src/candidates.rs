@@ -151,7 +151,14 @@ pub fn with_learnt_parameters(
             .extension
             .density
             .as_ref()
-            .map(|density| vec![("heavy_end_excess", density.excess)])
+            .map(|density| {
+                vec![
+                    ("heavy_end_excess", density.excess),
+                    ("axis_x", density.axis[0]),
+                    ("axis_y", density.axis[1]),
+                    ("axis_z", density.axis[2]),
+                ]
+            })
             .unwrap_or_default(),
         Candidate::GroundTilt => match &model.physics.floor {
             Some(floor) => {

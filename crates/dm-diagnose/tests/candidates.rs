@@ -91,7 +91,8 @@ fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
 
 /// Issue 6: what a candidate's fit learnt is read back from the fitted
 /// model in the trial's own terms (a tilt's angle and azimuth, a drag's
-/// coefficient, a stiff ball's factor, a density excess), so
+/// coefficient, a stiff ball's factor, a density gradient's excess and
+/// axis), so
 /// `effect_parameters` reports the learnt values.
 #[test]
 fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
@@ -124,9 +125,17 @@ fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
     let learnt = with_learnt_parameters(Candidate::StiffInclusion, &ball, &fitted);
     assert_eq!(learnt["stiffness_factor"], 11.5);
     assert_eq!(learnt["radius_m"], 0.02);
-    let density = tried(&[("heavy_end_excess", -2.5), ("axis_x", 1.0)]);
+    let density = tried(&[
+        ("heavy_end_excess", -2.5),
+        ("axis_x", 1.0),
+        ("axis_y", 0.0),
+        ("axis_z", 0.0),
+    ]);
     let mut fitted = apply(&model, Candidate::DensityVariation, &density);
-    fitted.extension.density.as_mut().expect("gradient").excess = -3.4;
+    let gradient = fitted.extension.density.as_mut().expect("gradient");
+    gradient.excess = -3.4;
+    gradient.axis = [0.6, -0.8, 0.0];
     let learnt = with_learnt_parameters(Candidate::DensityVariation, &density, &fitted);
     assert_eq!(learnt["heavy_end_excess"], -3.4);
+    assert_eq!((learnt["axis_x"], learnt["axis_y"]), (0.6, -0.8));
 }

@@ -1,6 +1,7 @@
 //! Effect terms a fit learns beside the material (issue 6): the drag and
 //! viscosity coefficients, a ground tilt, a stiff ball's factor and a
-//! density gradient's excess, where the start model has them switched on.
+//! density gradient's excess and axis, where the start model has them
+//! switched on.
 //! A fit from a bundle has none on and learns none; `dm-diagnose` starts
 //! its candidates' fits with one on.
 //!

@@ -340,12 +340,16 @@ pub fn loss_and_gradient(
     let extension = &model.extension;
     let masses: Vec<f64> = world.state().mass.iter().map(|m| f64::from(*m)).collect();
     let grad_extension = ExtensionGrads {
-        stiffness_log_factor: extension.stiffness_log_factor_gradient(
-            &model.particles,
-            &model.particle_material(),
-            &grad_mu,
-            &grad_lambda,
-        ),
+        // The base material is rebuilt only when a ball needs it.
+        stiffness_log_factor: match extension.stiff_ball {
+            Some(_) => extension.stiffness_log_factor_gradient(
+                &model.particles,
+                &model.particle_material(),
+                &grad_mu,
+                &grad_lambda,
+            ),
+            None => 0.0,
+        },
         density_excess: extension.density_excess_gradient(&model.particles, &masses, &grad_mass),
         density_axis: extension.density_axis_gradient(&model.particles, &masses, &grad_mass),
     };

@@ -60,7 +60,7 @@ impl Candidate {
             Candidate::GroundTilt => "gravity tilted by θ towards azimuth φ",
             Candidate::ActuatorLag => "actuators follow the hand track shifted by s",
             Candidate::DensityVariation => {
-                "density × (1 + a s) along one of the two main axes, total mass kept"
+                "density × (1 + a s) along an axis in the object's main plane, total mass kept"
             }
         }
     }

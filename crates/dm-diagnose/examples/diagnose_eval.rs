@@ -1,6 +1,6 @@
 //! The full hidden-effect evaluation of issue 6:
 //!
-//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates]
+//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit]
 //!
 //! synthesises HIDDEN scenes (default 16) with a seeded random effect,
 //! preset and magnitude and NULL scenes (default 4) without, fits and
@@ -9,10 +9,14 @@
 //! rerun skips finished steps) and OUT_DIR/confusion.md over every line
 //! of results.jsonl. With `SHARD/SHARDS` (e.g. `0/2`) the run takes every
 //! SHARDS-th scene from the SHARD-th, so several processes can share one
-//! OUT_DIR.
+//! OUT_DIR. Scenes are fitted with `evaluation_fit_options` (6 + 6
+//! material steps), or with `--quick-fit` the 3 + 1 steps of sessions
+//! one to fourteen (a scene directory that already holds a model keeps it).
 
 use dm_diagnose::DiagnoseOptions;
-use dm_diagnose::evaluation::{SceneResult, confusion_markdown, run_scene};
+use dm_diagnose::evaluation::{
+    SceneResult, confusion_markdown, evaluation_fit_options, quick_fit_options, run_scene,
+};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -20,7 +24,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     // `--fit-candidates` anywhere: score candidates by fits from the start.
     let fit_candidates = args.iter().any(|a| a == "--fit-candidates");
-    args.retain(|a| a != "--fit-candidates");
+    let fit = if args.iter().any(|a| a == "--quick-fit") {
+        quick_fit_options()
+    } else {
+        evaluation_fit_options()
+    };
+    args.retain(|a| a != "--fit-candidates" && a != "--quick-fit");
     let out = PathBuf::from(
         args.first()
             .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?,
@@ -64,7 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             seed
         ));
         let start = std::time::Instant::now();
-        match run_scene(seed, is_null, &dir, &options) {
+        match run_scene(seed, is_null, &dir, &fit, &options) {
             Ok((r, _)) => {
                 println!(
                     "seed {seed}: {} {} (hidden {}{}) → {} (conf {:.2}, best {:.3}), test track {:.2} → {:.2} mm, {:.0} s",

@@ -39,7 +39,7 @@ pub fn quick_fit_options() -> FitOptions {
 }
 
 /// The evaluation's fit: 6 + 6 material steps at twice the rate. The quick
-/// fit moves E by at most ~1.5× from its start (a cloth 4e4 → 5.4e4 Pa,
+/// fit moves E by at most ~1.5× from its start (a cloth 4e4 → 6.0e4 Pa,
 /// truth 1.2e5), and candidates that stiffen or damp the soft model then
 /// "explain" its misfit: null cloth 1516's held-out Track is 24.1 mm after
 /// the quick fit (viscous damping named, 13.2 mm) and 8.6 mm after this

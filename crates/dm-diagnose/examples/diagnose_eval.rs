@@ -11,7 +11,8 @@
 //! SHARDS-th scene from the SHARD-th, so several processes can share one
 //! OUT_DIR. Scenes are fitted with `evaluation_fit_options` (6 + 6
 //! material steps), or with `--quick-fit` the 3 + 1 steps of sessions
-//! one to fourteen (a scene directory that already holds a model keeps it).
+//! one to fourteen (a scene's model fitted with the other options is
+//! fitted again).
 
 use dm_diagnose::DiagnoseOptions;
 use dm_diagnose::evaluation::{

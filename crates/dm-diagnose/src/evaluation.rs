@@ -90,8 +90,8 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
     (config, effect)
 }
 
-/// Synthesises, fits (with `fit`, unless `dir` already holds the model) and
-/// diagnoses one scene under `dir`.
+/// Synthesises, fits (with `fit`, unless `dir` already holds a model fitted
+/// with it) and diagnoses one scene under `dir`.
 pub fn run_scene(
     seed: u64,
     null: bool,
@@ -111,7 +111,13 @@ pub fn run_scene(
         })?;
     }
     let bundle = dm_bundle::Bundle::open(&scene)?;
-    if !model.join("model.json").is_file() {
+    // A model fitted with other options (the quick fit of an earlier run)
+    // is fitted again, so one evaluation never mixes two schedules.
+    let fitted_with = |dir: &Path| {
+        dm_bundle::read_json::<dm_fit::run::FitReport>(&dir.join("fit_report.json"))
+            .is_ok_and(|r| r.options == *fit)
+    };
+    if !model.join("model.json").is_file() || !fitted_with(&model) {
         run_fit(&bundle, fit, &model, false, None, &mut |_| {})?;
     }
     let d = diagnose(

@@ -33,7 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     args.retain(|a| a != "--fit-candidates" && a != "--quick-fit");
     let out = PathBuf::from(
         args.first()
-            .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED]")?,
+            .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit]")?,
     );
     let hidden: u64 = args.get(1).map_or(Ok(16), |s| s.parse())?;
     let null: u64 = args.get(2).map_or(Ok(4), |s| s.parse())?;

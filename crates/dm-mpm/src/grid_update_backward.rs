@@ -12,7 +12,10 @@
 //! u = v_t + μ v_n t̂, whose Jacobian-transpose is
 //! ū ↦ Π_t ū + μ (t̂·ū) n + (μ v_n/|v_t|)(Π_t ū − t̂ (t̂·ū)) with
 //! Π_t = I − n nᵀ; sticking gives u = 0 and passes nothing back. The
-//! branch is taken from the forward values, like the projections'.
+//! branch is taken from the forward values, like the projections'. The
+//! coefficient's own adjoint (a learnt friction, issue 6) is
+//! μ̄ = Σ ū · ∂u/∂μ = Σ v_n (t̂·ū) over the sliding floor nodes (a
+//! sticking node's u = 0 does not depend on μ), summed like ḡ below.
 //!
 //! With η > 0 the viscous solve sits between u_pre and the boundaries:
 //! the boundaries' adjoint is taken at its output, and its own adjoint
@@ -37,6 +40,8 @@ pub struct GridParameterGrads<T: Real> {
     pub viscosity: T,
     /// Adjoint of the gravity vector.
     pub gravity: Vec3<T>,
+    /// Adjoint of the floor's Coulomb friction μ (zero when μ = 0).
+    pub friction: T,
 }
 
 /// dt γ Σ ū_pre of one slab's nodes with mass (see the module docs).
@@ -65,13 +70,13 @@ pub fn grid_update_backward<T: Real>(
     grad_pre.clear();
     grad_pre.resize(pre.nodes.len(), T::Lane4::default());
     if k.viscosity == T::zero() {
-        let slab_sums: Vec<Vec3<T>> = grad_pre
+        let slab_sums: Vec<(Vec3<T>, T)> = grad_pre
             .par_chunks_mut(res * res)
             .zip(pre.nodes.par_chunks(res * res))
             .zip(grad_u.par_chunks(res * res))
             .enumerate()
             .map(|(i, ((out, slab), gslab))| {
-                let mut gravity = Vec3::zeros();
+                let (mut gravity, mut friction) = (Vec3::zeros(), T::zero());
                 for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
                     let lanes = node.to_array();
                     let m = lanes[3];
@@ -81,21 +86,23 @@ pub fn grid_update_backward<T: Real>(
                     let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
                     let u = (momentum / m + k.gravity * k.dt) * k.grid_damping;
                     let ga = g.to_array();
-                    let gu = boundaries_adjoint(
+                    let (gu, friction_share) = boundaries_adjoint(
                         k,
                         [i, jk / res, jk % res],
                         u,
                         Vec3::new(ga[0], ga[1], ga[2]),
                     );
                     gravity += gu;
+                    friction += friction_share;
                     *o = velocity_adjoint(k, momentum, m, gu, T::zero());
                 }
-                gravity * (k.dt * k.grid_damping)
+                (gravity * (k.dt * k.grid_damping), friction)
             })
             .collect();
         return Ok(GridParameterGrads {
             viscosity: T::zero(),
-            gravity: slab_sums.iter().fold(Vec3::zeros(), |a, b| a + b),
+            gravity: slab_sums.iter().fold(Vec3::zeros(), |a, b| a + b.0),
+            friction: slab_sums.iter().fold(T::zero(), |a, b| a + b.1),
         });
     }
     // u per node, then the viscous solve's v: recomputed, as the rest of
@@ -115,23 +122,28 @@ pub fn grid_update_backward<T: Real>(
     let mut grad_v = std::mem::take(&mut viscous.backward_grad_v);
     grad_v.clear();
     grad_v.resize(pre.nodes.len(), Vec3::zeros());
-    grad_v
+    let friction_sums: Vec<T> = grad_v
         .par_chunks_mut(res * res)
         .zip(velocities.nodes.par_chunks(res * res))
         .zip(grad_u.par_chunks(res * res))
         .enumerate()
-        .for_each(|(i, ((out, slab), gslab))| {
+        .map(|(i, ((out, slab), gslab))| {
+            let mut friction = T::zero();
             for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
                 let a = node.to_array();
                 let ga = g.to_array();
-                *o = boundaries_adjoint(
+                let (gv, friction_share) = boundaries_adjoint(
                     k,
                     [i, jk / res, jk % res],
                     Vec3::new(a[0], a[1], a[2]),
                     Vec3::new(ga[0], ga[1], ga[2]),
                 );
+                *o = gv;
+                friction += friction_share;
             }
-        });
+            friction
+        })
+        .collect();
     let mut grad_mass = std::mem::take(&mut viscous.backward_grad_mass);
     grad_mass.clear();
     grad_mass.resize(pre.nodes.len(), T::zero());
@@ -171,6 +183,7 @@ pub fn grid_update_backward<T: Real>(
     Ok(GridParameterGrads {
         viscosity: grad_viscosity,
         gravity,
+        friction: friction_sums.iter().fold(T::zero(), |a, b| a + *b),
     })
 }
 
@@ -190,14 +203,15 @@ fn velocity_adjoint<T: Real>(
 }
 
 /// Adjoint of [`crate::grid_update::apply_boundaries`] at the velocity `v`
-/// it was applied to, given the adjoint `g` of its output.
+/// it was applied to, given the adjoint `g` of its output: the input's
+/// adjoint and this node's share of μ̄.
 #[inline(always)]
 fn boundaries_adjoint<T: Real>(
     k: &Consts<T>,
     idx: [usize; 3],
     mut v: Vec3<T>,
     g: Vec3<T>,
-) -> Vec3<T> {
+) -> (Vec3<T>, T) {
     let (res, wall) = (k.res, k.wall_cells);
     let mut wall_kept = [true; 3];
     for a in 0..3 {
@@ -206,11 +220,11 @@ fn boundaries_adjoint<T: Real>(
             wall_kept[a] = false;
         }
     }
-    let mut gv = g;
+    let (mut gv, mut friction) = (g, T::zero());
     if let Some(floor) = &k.floor {
         let vn = v.dot(&floor.up);
         if node_position(k, idx).dot(&floor.up) <= floor.limit && vn < T::zero() {
-            gv = floor_adjoint(floor.up, floor.friction, v, vn, gv);
+            (gv, friction) = floor_adjoint(floor.up, floor.friction, v, vn, gv);
         }
     }
     for a in 0..3 {
@@ -218,23 +232,26 @@ fn boundaries_adjoint<T: Real>(
             gv[a] = T::zero();
         }
     }
-    gv
+    (gv, friction)
 }
 
 /// Adjoint of the floor's velocity map at a node moving into the floor
 /// (`vn` = n·v < 0): the normal projection, and with μ > 0 the Coulomb
-/// slip or stick of the module docs.
-fn floor_adjoint<T: Real>(n: Vec3<T>, friction: T, v: Vec3<T>, vn: T, g: Vec3<T>) -> Vec3<T> {
+/// slip or stick of the module docs; also ū · ∂u/∂μ.
+fn floor_adjoint<T: Real>(n: Vec3<T>, friction: T, v: Vec3<T>, vn: T, g: Vec3<T>) -> (Vec3<T>, T) {
     let projected = g - n * n.dot(&g);
     if friction <= T::zero() {
-        return projected;
+        return (projected, T::zero());
     }
     let vt = v - n * vn;
     let speed = vt.norm();
     if speed <= friction * (-vn) {
-        return Vec3::zeros();
+        return (Vec3::zeros(), T::zero());
     }
     let t = vt / speed;
     let along = t.dot(&g);
-    projected + n * (friction * along) + (projected - t * along) * (friction * vn / speed)
+    (
+        projected + n * (friction * along) + (projected - t * along) * (friction * vn / speed),
+        vn * along,
+    )
 }

@@ -99,6 +99,8 @@ pub struct SubstepGrads<T> {
     pub viscosity: T,
     /// Adjoint of the gravity vector (a ground tilt's parameter).
     pub gravity: Vec3<T>,
+    /// Adjoint of the floor's Coulomb friction μ.
+    pub friction: T,
     /// Adjoint of each particle's mass (a density gradient's parameter).
     pub mass: Vec<T>,
 }
@@ -188,6 +190,7 @@ impl<T: Real> SubstepGrads<T> {
             effects: vec![[T::zero(); 2]; n],
             viscosity: T::zero(),
             gravity: Vec3::zeros(),
+            friction: T::zero(),
             mass: vec![T::zero(); n],
         }
     }
@@ -271,6 +274,7 @@ pub(crate) fn substep_backward_into<T: Real>(
     )?;
     grads.viscosity = grid_parameters.viscosity;
     grads.gravity = grid_parameters.gravity;
+    grads.friction = grid_parameters.friction;
     let grad_pre = &scratch.grad_pre;
     let state = &mut grads.state;
     (

@@ -114,6 +114,8 @@ pub struct EffectGrads {
     pub viscosity: f64,
     /// ∂L/∂g, the gravity vector (m/s²; a ground tilt turns it).
     pub gravity: [f64; 3],
+    /// ∂L/∂μ, the floor's Coulomb friction.
+    pub floor_friction: f64,
 }
 
 impl std::ops::AddAssign for EffectGrads {
@@ -121,6 +123,7 @@ impl std::ops::AddAssign for EffectGrads {
         self.air_drag_linear += other.air_drag_linear;
         self.air_drag_quadratic += other.air_drag_quadratic;
         self.viscosity += other.viscosity;
+        self.floor_friction += other.floor_friction;
         for a in 0..3 {
             self.gravity[a] += other.gravity[a];
         }
@@ -209,6 +212,7 @@ impl<T: Real> World<T> {
                 effects.air_drag_quadratic += share[1].to_f64();
             }
             effects.viscosity += step.viscosity.to_f64();
+            effects.floor_friction += step.friction.to_f64();
             for a in 0..3 {
                 effects.gravity[a] += step.gravity[a].to_f64();
             }

@@ -3,7 +3,8 @@
 //! reads: x, v, F, C, μ, λ, expert weights and the external acceleration
 //! (with air drag and viscous damping on), and the effect parameters
 //! k₁, k₂ (drag) and η (viscosity); and with a floor under the particles,
-//! sliding and sticking under Coulomb friction (issue 6).
+//! sliding and sticking under Coulomb friction, with the friction
+//! coefficient's own adjoint (issue 6).
 
 use dm_mpm::PhysicsConfig;
 use dm_mpm::config::FloorConfig;
@@ -46,10 +47,13 @@ struct Scene {
     pure_neo_hookean: bool,
 }
 
-/// A floor under the particles' lower grid nodes, and its friction μ.
+/// A floor under the particles' lower grid nodes, its friction μ, and
+/// whether the grid's viscous solve runs (the grid update's adjoint has a
+/// path with it and one without).
 #[derive(Clone, Copy)]
 struct FloorCase {
     friction: f64,
+    viscous: bool,
 }
 
 /// The floor case's plane: nodes at z ≤ 0.47 (grid rows 6 and 7 of 16,
@@ -90,7 +94,11 @@ fn scene_with(seed: u64, pure_neo_hookean: bool, floor: Option<FloorCase>) -> Sc
     // outweighs the nodes' mass and a wrong term in its adjoint (the
     // solve, its mass dependence) moves every gradient beyond FD_RTOL.
     config.density = 1.0;
-    config.effects.viscosity = 20.0;
+    config.effects.viscosity = if floor.is_none_or(|f| f.viscous) {
+        20.0
+    } else {
+        0.0
+    };
     let n = 60;
     let x: Vec<Vec3<f64>> = (0..n)
         .map(|_| Vec3::new(0.5, 0.5, 0.5) + rand_vec(&mut rng, 0.07))
@@ -324,19 +332,34 @@ fn check_scene(seed: u64, s: Scene) {
             _ => t.consts.drag_quadratic += EFFECT_DIRECTION * h,
         });
     }
-    check(
-        "viscosity",
-        &s,
-        &probe,
-        EFFECT_DIRECTION * grads.viscosity,
-        &|t, h| t.consts.viscosity += EFFECT_DIRECTION * h,
-    );
+    // η = 0 switches the viscous solve off: the adjoint has no η̄ there
+    // (a fit learns ln η, so η stays > 0 once the term is on).
+    if s.consts.viscosity > 0.0 {
+        check(
+            "viscosity",
+            &s,
+            &probe,
+            EFFECT_DIRECTION * grads.viscosity,
+            &|t, h| t.consts.viscosity += EFFECT_DIRECTION * h,
+        );
+    }
     // Gravity (a ground tilt's parameter): it moves the loss by dt per unit,
     // so it is probed along the same long direction.
     let dg = rand_vec(&mut rng, EFFECT_DIRECTION);
     check("gravity", &s, &probe, grads.gravity.dot(&dg), &|t, h| {
         t.consts.gravity += dg * h
     });
+    // The floor's friction μ (a learnt friction's parameter): a unit step
+    // moves a sliding node's velocity by v_n t̂ (|v_n| ≈ 0.4 m/s), an O(1)
+    // change of the loss, so the plain FD_STEP serves; 1e-6 of μ crosses
+    // no stick/slip switch on these seeds (see FLOOR_DRIFT).
+    if s.consts.floor.is_some_and(|f| f.friction > 0.0) {
+        check("floor_friction", &s, &probe, grads.friction, &|t, h| {
+            if let Some(floor) = t.consts.floor.as_mut() {
+                floor.friction += h;
+            }
+        });
+    }
     if !pure_neo_hookean {
         let analytic: f64 = grads
             .weights
@@ -369,18 +392,65 @@ fn issue3_substep_adjoint_matches_finite_differences_neo_hookean() {
 /// floor nodes mostly sliding (μ = 0.5).
 #[test]
 fn issue6_substep_adjoint_matches_finite_differences_floor_sliding() {
-    check_scene(3, scene_with(3, false, Some(FloorCase { friction: 0.5 })));
+    check_scene(
+        3,
+        scene_with(
+            3,
+            false,
+            Some(FloorCase {
+                friction: 0.5,
+                viscous: true,
+            }),
+        ),
+    );
 }
 
 /// The same floor with floor nodes mostly sticking (μ = 5): nothing flows
 /// back through a sticking node.
 #[test]
 fn issue6_substep_adjoint_matches_finite_differences_floor_sticking() {
-    check_scene(4, scene_with(4, false, Some(FloorCase { friction: 5.0 })));
+    check_scene(
+        4,
+        scene_with(
+            4,
+            false,
+            Some(FloorCase {
+                friction: 5.0,
+                viscous: true,
+            }),
+        ),
+    );
+}
+
+/// Sliding on the floor without the viscous solve: the grid update's
+/// adjoint takes its other path, which sums μ̄ on its own.
+#[test]
+fn issue6_substep_adjoint_matches_finite_differences_floor_sliding_inviscid() {
+    check_scene(
+        6,
+        scene_with(
+            6,
+            false,
+            Some(FloorCase {
+                friction: 0.5,
+                viscous: false,
+            }),
+        ),
+    );
 }
 
 /// The frictionless floor (projection only), for comparison.
 #[test]
 fn issue6_substep_adjoint_matches_finite_differences_floor_frictionless() {
-    check_scene(5, scene_with(5, false, Some(FloorCase { friction: 0.0 })));
+    check_scene(
+        5,
+        scene_with(
+            5,
+            false,
+            Some(FloorCase {
+                friction: 0.0,
+                viscous: true,
+            }),
+        ),
+    );
 }

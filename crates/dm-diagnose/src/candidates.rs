@@ -124,8 +124,8 @@ fn params(pairs: &[(&str, f64)]) -> BTreeMap<String, f64> {
     pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect()
 }
 
-/// `parameters` with the terms a fit learns beside the material (drag and
-/// viscosity coefficients, the tilt, a stiff ball's factor, a density
+/// `parameters` with the terms a fit learns beside the material (drag,
+/// viscosity and friction coefficients, the tilt, a stiff ball's factor, a density
 /// gradient's excess; `dm_fit::learnt_effects`) read back from the
 /// fitted `model` that carries them. Other candidates' parameters are
 /// kept as tried.
@@ -141,6 +141,7 @@ pub fn with_learnt_parameters(
             ("quadratic_per_m", effects.air_drag_quadratic),
         ],
         Candidate::ViscousDamping => vec![("viscosity_pa_s", effects.viscosity)],
+        Candidate::FloorFriction => vec![("coefficient", effects.floor_friction)],
         Candidate::StiffInclusion => model
             .extension
             .stiff_ball

@@ -23,6 +23,7 @@ pub fn quick_fit_options() -> FitOptions {
         iters: 3,
         stage2_iters: 1,
         lr: 0.1,
+        effect_lr: None,
         residual_lr: 5e-3,
         residual_iters: 0,
         // No residual-only stage; `last` is what records before the option read as.
@@ -49,6 +50,10 @@ pub fn evaluation_fit_options() -> FitOptions {
         iters: 6,
         stage2_iters: 6,
         lr: 0.2,
+        // The candidates' effect terms keep the quick fit's rate: at 0.2
+        // they overshot (density excess 7–8 against 3.3–3.7, a tilt 11.9°
+        // against 7.2°; docs/RESULTS.md, sixteenth session).
+        effect_lr: Some(0.1),
         ..quick_fit_options()
     }
 }

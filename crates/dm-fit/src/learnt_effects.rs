@@ -5,24 +5,30 @@
 //! A fit from a bundle has none on and learns none; `dm-diagnose` starts
 //! its candidates' fits with one on.
 //!
-//! * Coefficients (linear and quadratic drag, viscosity) are stepped as
-//!   natural logs: they stay positive and each step is relative (drag
-//!   spans 1–200 /s, η 3e3–5e4 Pa·s); ∂L/∂ln k = k ∂L/∂k.
+//! The groups step at the effect rate (`--effect-lr`, by default the
+//! material rate `--lr`) or fixed multiples of it, so a fit can step its
+//! material faster without its effects overshooting.
+//!
+//! * Coefficients (linear and quadratic drag, viscosity, floor friction)
+//!   are stepped as natural logs: they stay positive and each step is
+//!   relative (drag spans 1–200 /s, η 3e3–5e4 Pa·s, μ 0.3–0.9);
+//!   ∂L/∂ln k = k ∂L/∂k. Friction's ∂L/∂μ comes from the floor's sliding
+//!   nodes only (a sticking node's velocity is 0 whatever μ is).
 //! * A tilt is gravity turned away from the floor's down direction. It is
 //!   learnt as the horizontal components h = (h_e, h_n) of ĝ in the
 //!   floor's (east, north) basis, |g| fixed: g = |g| (h_e e + h_n n − c up)
 //!   with c = √(1 − |h|²), so ∂g/∂h_e = |g| (e + (h_e/c) up). Its Adam rate
-//!   is [`TILT_RATE_FACTOR`] × the material rate: at 0.1 a step would turn
+//!   is [`TILT_RATE_FACTOR`] × the effect rate: at 0.1 a step would turn
 //!   gravity by ≈ 6°, as much as a whole hidden tilt.
-//! * A stiff ball's factor is stepped as its log, at the material rate
+//! * A stiff ball's factor is stepped as its log, at the effect rate
 //!   (it spans 8–15 in the tests' draws).
 //! * A density gradient's excess a (heavy end 1 + |a| times the light
 //!   end) is stepped as itself, total mass kept, at [`DENSITY_RATE_FACTOR`]
-//!   × the material rate: the tests' draws span 2–4 and a quick fit has
+//!   × the effect rate: the tests' draws span 2–4 and a quick fit has
 //!   four steps. Its axis turns by an angle about the object's
 //!   least-spread principal direction (a cloth's normal), so it stays in
 //!   the plane of the two main axes the trials start from, at
-//!   [`DENSITY_AXIS_RATE_FACTOR`] × the material rate: a square cloth's
+//!   [`DENSITY_AXIS_RATE_FACTOR`] × the effect rate: a square cloth's
 //!   main axis is any in-plane direction. (Stepping the axis's three
 //!   components instead let Adam, which normalises each component, turn
 //!   a cloth's axis 25° out of its plane on noise: seed 1021.)
@@ -42,19 +48,19 @@ use dm_mpm::{Effects, PhysicsConfig};
 pub const EFFECTS_GROUP: &str = "effects_log";
 /// Adam's group of the tilt's horizontal components.
 pub const TILT_GROUP: &str = "gravity_tilt";
-/// The tilt's Adam rate relative to the material rate (module docs).
+/// The tilt's Adam rate relative to the effect rate (module docs).
 pub const TILT_RATE_FACTOR: f64 = 0.2;
 /// Adam's group of a stiff ball's log factor.
 pub const STIFFNESS_GROUP: &str = "stiff_ball_log_factor";
 /// Adam's group of a density gradient's excess.
 pub const DENSITY_GROUP: &str = "density_excess";
-/// The density excess's Adam rate relative to the material rate (module
+/// The density excess's Adam rate relative to the effect rate (module
 /// docs): 0.3 per step at the default 0.1.
 pub const DENSITY_RATE_FACTOR: f64 = 3.0;
 /// Adam's group of a density gradient's axis: its turn (radians) from
 /// where it is, about the object's least-spread direction.
 pub const DENSITY_AXIS_GROUP: &str = "density_axis_turn";
-/// The turn's Adam rate relative to the material rate: 0.2 rad (11°) per
+/// The turn's Adam rate relative to the effect rate: 0.2 rad (11°) per
 /// step at the default, so a quick fit's four steps can turn a cloth's
 /// axis by its 45° of ambiguity.
 pub const DENSITY_AXIS_RATE_FACTOR: f64 = 2.0;
@@ -68,7 +74,7 @@ struct Coefficient {
     gradient: fn(&EffectGrads) -> f64,
 }
 
-const COEFFICIENTS: [Coefficient; 3] = [
+const COEFFICIENTS: [Coefficient; 4] = [
     Coefficient {
         read: |e| e.air_drag_linear,
         write: |e, v| e.air_drag_linear = v,
@@ -83,6 +89,11 @@ const COEFFICIENTS: [Coefficient; 3] = [
         read: |e| e.viscosity,
         write: |e, v| e.viscosity = v,
         gradient: |g| g.viscosity,
+    },
+    Coefficient {
+        read: |e| e.floor_friction,
+        write: |e, v| e.floor_friction = v,
+        gradient: |g| g.floor_friction,
     },
 ];
 
@@ -154,10 +165,18 @@ pub struct ExtensionGrads {
     pub density_axis: [f64; 3],
 }
 
-/// Adam's rates of the learnt groups that do not step at the material
-/// rate, for `model` with material rate `learning_rate`.
+/// Adam's rates of the learnt effect groups `model` has, for effect rate
+/// `learning_rate` (`--effect-lr`; unset, the material rate): the
+/// coefficients and a stiff ball's factor step at it, the tilt and the
+/// density terms at their fixed multiples of it.
 pub fn group_rates(model: &WorldModel, learning_rate: f64) -> Vec<(&'static str, f64)> {
     let mut rates = Vec::new();
+    if switched_on(&model.physics.effects).next().is_some() {
+        rates.push((EFFECTS_GROUP, learning_rate));
+    }
+    if model.extension.stiff_ball.is_some() {
+        rates.push((STIFFNESS_GROUP, learning_rate));
+    }
     if Tilt::of(&model.physics).is_some() {
         rates.push((TILT_GROUP, TILT_RATE_FACTOR * learning_rate));
     }

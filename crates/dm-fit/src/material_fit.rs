@@ -57,6 +57,10 @@ pub struct MaterialFitConfig {
     pub iterations: usize,
     /// Adam learning rate on the unbounded parameters.
     pub learning_rate: f64,
+    /// Adam rate of the learnt effect terms (None: `learning_rate`;
+    /// [`crate::learnt_effects::group_rates`]).
+    #[serde(default)]
+    pub effect_learning_rate: Option<f64>,
     /// Substeps differentiated per frame (truncated BPTT).
     pub window: usize,
     /// Frames used (default: the bundle's train split).
@@ -87,7 +91,10 @@ impl MaterialFitConfig {
                 .insert(RESIDUAL_GROUP.into(), self.residual_learning_rate);
         }
         if self.learn_effects && !self.freeze_material {
-            for (group, rate) in learnt_effects::group_rates(model, self.learning_rate) {
+            for (group, rate) in learnt_effects::group_rates(
+                model,
+                self.effect_learning_rate.unwrap_or(self.learning_rate),
+            ) {
                 config.group_learning_rates.insert(group.into(), rate);
             }
         }
@@ -100,6 +107,7 @@ impl Default for MaterialFitConfig {
         Self {
             iterations: 20,
             learning_rate: 0.1,
+            effect_learning_rate: None,
             window: 20,
             frames: None,
             residual_learning_rate: 5e-3,

@@ -203,7 +203,7 @@ pub struct LossGradients {
     /// L_dyn of each predicted frame 1, 2, … (before the step; without the
     /// regulariser and the extra term), for [`late_frames_loss`].
     pub frame_losses: Vec<f64>,
-    /// Gradients of the effect terms (drag, viscosity, gravity), summed
+    /// Gradients of the effect terms (drag, viscosity, friction, gravity), summed
     /// over the differentiated frames.
     pub effects: EffectGrads,
     /// Gradients of the model extension's stiff ball and density gradient.

@@ -82,7 +82,7 @@ pub struct FitOptions {
     #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
-    /// Keep the effect terms the start model carries (drag and viscosity
+    /// Keep the effect terms the start model carries (drag, viscosity, friction
     /// coefficients, a ground tilt) fixed. By default the material stages
     /// learn them beside the material (`dm_fit::learnt_effects`); a model
     /// fitted from a bundle has none switched on, so this only matters for a start with an effect in

@@ -28,6 +28,11 @@ fn anchors_to() -> Vec<[f64; 3]> {
 }
 
 fn world() -> World<f64> {
+    world_with(|_| {})
+}
+
+/// The test world with its physics settings adjusted before it is built.
+fn world_with(adjust: impl FnOnce(&mut PhysicsConfig)) -> World<f64> {
     let mut config = PhysicsConfig::volumetric([-0.25, -0.25, -0.1], 0.5, [0.0, 0.0, 1.0]);
     config.grid_res = 16;
     config.dt = 1e-3;
@@ -35,6 +40,7 @@ fn world() -> World<f64> {
     config.position_clip = [0.1, 0.9]; // 1.5 cells at 16³
     config.empty_node_mass_ratio = 0.0;
     config.effects.air_drag_linear = 0.5;
+    adjust(&mut config);
     let mut positions = Vec::new();
     for i in 0..5 {
         for j in 0..4 {
@@ -384,4 +390,72 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
             loss(&w.state(), &probe)
         });
     }
+}
+
+/// The floor plane of the friction frame: grid nodes at z ≤ 0.03 (row 4 of
+/// 16, z = 0.025, inside the support of the lowest particles at z = 0.06)
+/// are floor nodes.
+const FRICTION_FLOOR_HEIGHT: f64 = 0.03;
+
+/// Friction coefficient of the frame check: with the drift below most floor
+/// nodes slide (|v_t| ≈ 0.45 m/s against μ |v_n| ≈ 0.1 m/s).
+const FRICTION: f64 = 0.3;
+
+/// Every particle's velocity at the taped frame's start gets this drift
+/// (m/s): sideways and down, into the floor.
+const FRICTION_DRIFT: [f64; 3] = [0.4, 0.2, -0.3];
+
+/// Issue 6: floor friction μ through a whole frame (the substep checks in
+/// `gradients_substep.rs` cover one grid update; this one covers the
+/// frame's sum of μ̄ over its substeps, actuators coupled), and the state
+/// adjoint through the sliding floor.
+#[test]
+fn issue6_frame_adjoint_of_floor_friction_matches_finite_differences() {
+    let mut w = world_with(|config| {
+        config.floor = Some(dm_mpm::FloorConfig {
+            up: [0.0, 0.0, 1.0],
+            height: FRICTION_FLOOR_HEIGHT,
+            margin: 0.0,
+        });
+        config.effects.floor_friction = FRICTION;
+    });
+    let n = w.particle_count();
+    let mut start = w.state();
+    for v in &mut start.v {
+        *v += Vec3::from(FRICTION_DRIFT);
+    }
+    w.set_state(&start).expect("state");
+    let to = anchors_to();
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let probe = position_velocity_probe(&mut rng, n);
+    let tape = w
+        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
+        .expect("taped frame");
+    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    let analytic = grads.effects.floor_friction;
+    assert!(
+        analytic != 0.0,
+        "floor nodes must slide for the frame to depend on μ"
+    );
+    let base = w.config().effects.clone();
+    // A relative step, as for the other coefficients: μ = 0.3 moved by
+    // 3e-7 keeps the O(1) loss's difference above round-off.
+    check("floor_friction", analytic * FRICTION, &mut |h| {
+        let mut effects = base.clone();
+        effects.floor_friction = FRICTION * (1.0 + h);
+        w.set_effects(effects).expect("effects");
+        w.set_state(&start).expect("state");
+        w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+        loss(&w.state(), &probe)
+    });
+    w.set_effects(base).expect("effects");
+    let dv: Vec<Vec3<f64>> = (0..n).map(|_| rand_vec(&mut rng, 1.0)).collect();
+    let analytic_v: f64 = grads.state.v.iter().zip(&dv).map(|(g, d)| g.dot(d)).sum();
+    check("v through the floor", analytic_v, &mut |h| {
+        let mut s = start.clone();
+        s.v.iter_mut().zip(&dv).for_each(|(v, d)| *v += d * h);
+        w.set_state(&s).expect("state");
+        w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+        loss(&w.state(), &probe)
+    });
 }

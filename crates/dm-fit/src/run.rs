@@ -34,8 +34,8 @@ pub struct FitOptions {
     /// Adam learning rate on the unbounded material parameters.
     #[arg(long, default_value_t = 0.1)]
     pub lr: f64,
-    /// Adam rate of the learnt effect terms (drag and viscosity logs, a
-    /// stiff ball's log factor; the tilt and density groups step at fixed
+    /// Adam rate of the learnt effect terms (drag, viscosity and friction
+    /// logs, a stiff ball's log factor; the tilt and density groups step at fixed
     /// multiples of it, `dm_fit::learnt_effects`). Unset, it is `--lr`, as
     /// run records written before the option existed ran. The rate that
     /// suits an effect is not the material's: at lr 0.2 density excesses

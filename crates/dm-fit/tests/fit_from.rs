@@ -108,6 +108,30 @@ fn fit_three_steps(
     saved(out)
 }
 
+/// Three-step fits from `truth_start` with one effect coefficient set to
+/// each of `starts`: each must end nearer `target` on a log scale, by at
+/// least 0.1 in the log.
+fn assert_coefficient_moves_toward(
+    bundle: &dm_bundle::Bundle,
+    truth_start: &WorldModel,
+    dir: &std::path::Path,
+    target: f64,
+    starts: [f64; 2],
+    coefficient: fn(&mut dm_mpm::Effects) -> &mut f64,
+    what: &str,
+) {
+    for start in starts {
+        let mut model = truth_start.clone();
+        *coefficient(&mut model.physics.effects) = start;
+        let mut fitted = fit_three_steps(bundle, model, &dir.join(format!("start_{start}")));
+        let end = *coefficient(&mut fitted.physics.effects);
+        assert!(
+            (end.ln() - target.ln()).abs() < (start.ln() - target.ln()).abs() - 0.1,
+            "{what} {target}: started at {start}, ended at {end}"
+        );
+    }
+}
+
 /// Issue 6: a fit started with a quarter or four times the drag hidden
 /// in the scene (60 /s) moves it toward the hidden drag (on this rope
 /// the training loss is lowest at 30–60 /s).
@@ -116,18 +140,15 @@ fn issue6_learnt_drag_moves_toward_the_hidden_drag() {
     let dir = tempfile::tempdir().expect("temp dir");
     let hidden: f64 = 60.0;
     let (bundle, _, truth_start) = truth_start(dir.path(), &format!("air_drag:{hidden}"));
-    for start in [hidden / 4.0, hidden * 4.0] {
-        let mut model = truth_start.clone();
-        model.physics.effects.air_drag_linear = start;
-        let k = fit_three_steps(&bundle, model, &dir.path().join(format!("start_{start}")))
-            .physics
-            .effects
-            .air_drag_linear;
-        assert!(
-            (k.ln() - hidden.ln()).abs() < (start.ln() - hidden.ln()).abs() - 0.1,
-            "started at {start} /s, ended at {k} /s, hidden {hidden} /s"
-        );
-    }
+    assert_coefficient_moves_toward(
+        &bundle,
+        &truth_start,
+        dir.path(),
+        hidden,
+        [hidden / 4.0, hidden * 4.0],
+        |e| &mut e.air_drag_linear,
+        "air drag (/s), hidden",
+    );
 }
 
 /// Issue 6: learnt friction on a rope pushed along a floor with μ = 0.8
@@ -140,19 +161,15 @@ fn issue6_learnt_drag_moves_toward_the_hidden_drag() {
 fn issue6_learnt_friction_moves_toward_the_train_loss_minimum() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, _, truth_start) = truth_start(dir.path(), "floor_friction:0.8");
-    let lowest: f64 = 0.3;
-    for start in [0.1_f64, 1.2] {
-        let mut model = truth_start.clone();
-        model.physics.effects.floor_friction = start;
-        let mu = fit_three_steps(&bundle, model, &dir.path().join(format!("start_{start}")))
-            .physics
-            .effects
-            .floor_friction;
-        assert!(
-            (mu.ln() - lowest.ln()).abs() < (start.ln() - lowest.ln()).abs() - 0.1,
-            "started at μ {start}, ended at {mu}, train loss lowest near {lowest}"
-        );
-    }
+    assert_coefficient_moves_toward(
+        &bundle,
+        &truth_start,
+        dir.path(),
+        0.3,
+        [0.1, 1.2],
+        |e| &mut e.floor_friction,
+        "friction μ, train loss lowest near",
+    );
 }
 
 /// Issue 6: a fit started with the hidden tilt's angle but an azimuth

@@ -3,7 +3,9 @@
 //! gain selection, stage 2 (material with the selected gains) and stage 3
 //! (first-frame Gaussians, then RGB-guided refinement, [`rgb_stage`]);
 //! [`material_fit`] is one differentiated rollout and Adam step;
-//! [`sensitivity`] reports how sharply the clip pins the fitted material;
+//! [`sensitivity`] reports how sharply the clip pins the fitted material
+//! and [`identifiability`] how precisely its tracks could (the Cramér–Rao
+//! bound);
 //! [`learnt_effects`] are the effect terms a fit learns beside it.
 //!
 //! The optimisers:
@@ -21,6 +23,7 @@
 //! activations (e.g. log-sigmoid for Young's modulus), so the optimisers
 //! never need to know about physical bounds.
 
+pub mod identifiability;
 pub mod learnt_effects;
 pub mod loss;
 pub mod material_fit;

@@ -3,6 +3,9 @@
 //! stage 1, material again with the selected gains. Every iteration ends
 //! with a checkpoint, so an interrupted fit resumes where it stopped.
 
+use crate::identifiability::{
+    DEFAULT_TRACK_NOISE_MM, DEFAULT_TRACK_OFFSET_MM, TrackNoise, identifiability_at,
+};
 use crate::material_fit::{
     FitError, IterationReport, MaterialFitConfig, fit_frames, late_frames_loss, material_step,
     train_frame_losses, train_loss,
@@ -91,6 +94,42 @@ pub struct FitOptions {
     #[arg(long)]
     #[serde(default)]
     pub freeze_effects: bool,
+    /// After the fit, bound how precisely the clip's training tracks can
+    /// determine ln E, ν, ln k_p and ln k_d at the fitted values (the
+    /// Cramér–Rao bound, `dm_fit::identifiability`; 9 forward rollouts):
+    /// `material.identifiability` in fit_report.json. A bound far below the
+    /// gap between two fits' values says the gap is the model's, not the
+    /// noise's. Run records written before the option read as `false`.
+    #[arg(long)]
+    #[serde(default)]
+    pub identifiability: bool,
+    /// Track noise the bound assumes, mm per axis and frame (dm-synth's).
+    #[arg(long, default_value_t = DEFAULT_TRACK_NOISE_MM)]
+    #[serde(default = "default_track_noise_mm")]
+    pub track_noise_mm: f64,
+    /// Constant offset per track and axis the bound assumes, mm (dm-synth's
+    /// per-track bias).
+    #[arg(long, default_value_t = DEFAULT_TRACK_OFFSET_MM)]
+    #[serde(default = "default_track_offset_mm")]
+    pub track_offset_mm: f64,
+}
+
+fn default_track_noise_mm() -> f64 {
+    DEFAULT_TRACK_NOISE_MM
+}
+
+fn default_track_offset_mm() -> f64 {
+    DEFAULT_TRACK_OFFSET_MM
+}
+
+impl FitOptions {
+    /// The track noise `--identifiability` assumes, in metres.
+    pub fn track_noise(&self) -> TrackNoise {
+        TrackNoise {
+            sigma_m: 1e-3 * self.track_noise_mm,
+            offset_sigma_m: 1e-3 * self.track_offset_mm,
+        }
+    }
 }
 
 /// Which iterate of the residual-only stage the fit keeps.
@@ -490,11 +529,24 @@ fn fit_stages(
     let (youngs, poisson) = state.model.material_medians();
     progress("probing how sharply the clip pins E and ν");
     let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
+    let identifiability = if options.identifiability {
+        progress("bounding how precisely the tracks determine E, ν and the gains");
+        Some(identifiability_at(
+            &state.model,
+            bundle,
+            frames,
+            options.track_noise(),
+            &mut |_| {},
+        )?)
+    } else {
+        None
+    };
     let report = FitReport {
         material: serde_json::json!({
             "E_median_pa": youngs,
             "nu_median": poisson,
             "sensitivity": sensitivity,
+            "identifiability": identifiability,
         }),
         dca: serde_json::json!({ "kp": state.model.actuator.kp, "kd": state.model.actuator.kd, "mode": state.model.actuator.mode }),
         loss: serde_json::json!({

@@ -1,0 +1,628 @@
+//! How well a clip *can* determine the fitted parameters, whatever the
+//! optimiser does: the Cramér–Rao lower bound of the observed tracks.
+//!
+//! [`sensitivity`](crate::sensitivity) says how much the training loss
+//! moves when E or ν is moved; this says how many standard deviations of
+//! the measurement noise that move is worth once the other fitted
+//! parameters (the actuator gains) may compensate. For Gaussian track noise
+//! of σ per axis and frame, plus a constant offset of σ_o per track and
+//! axis (the sensor's bias and the track's match to a particle), the
+//! tracks' Fisher information about θ is
+//!
+//!     F = Σ_{track, axis} Jᵀ Σ⁻¹ J,   Σ = σ² I + σ_o² 1 1ᵀ,
+//!     Σ⁻¹ = (I − c 1 1ᵀ) / σ²,        c = σ_o² / (σ² + m σ_o²),
+//!
+//! with J the (m × P) sensitivity of that track's simulated positions over
+//! its m observed training frames to the P parameters, taken by central
+//! differences of whole rollouts. Any unbiased estimator's covariance is
+//! at least F⁻¹; fixing a parameter (treating it as known) uses the
+//! inverse of the remaining block instead. The bound is optimistic: it
+//! ignores the noise on the hand tracks that drive the model and the
+//! model's own mismatch to the world, so a parameter whose bound is wider
+//! than a tolerance cannot be recovered to that tolerance from the clip.
+
+use crate::material_fit::FitError;
+use crate::sensitivity::moved_material;
+use dm_bundle::Bundle;
+use dm_model::WorldModel;
+use dm_mpm::neighbors::PointIndex;
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+/// A fitted parameter the information is taken over. Scale parameters are
+/// taken in log space, so their bound reads as a relative error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Parameter {
+    /// ln E of every patch at once (the homogeneous direction).
+    LnYoungs,
+    /// ν of every patch at once.
+    Poisson,
+    /// ln k_p of the actuators.
+    LnKp,
+    /// ln k_d of the actuators.
+    LnKd,
+}
+
+impl Parameter {
+    pub const ALL: [Parameter; 4] = [
+        Parameter::LnYoungs,
+        Parameter::Poisson,
+        Parameter::LnKp,
+        Parameter::LnKd,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Parameter::LnYoungs => "ln_E",
+            Parameter::Poisson => "nu",
+            Parameter::LnKp => "ln_kp",
+            Parameter::LnKd => "ln_kd",
+        }
+    }
+
+    /// Central-difference half step: about a third of issue 3's tolerance
+    /// on the material (ln 1.25 ≈ 0.22 on E, 0.05 on ν), so the secant
+    /// measures the scale the tolerance asks about while staying close to
+    /// linear; the gains get the same relative step as E.
+    pub fn default_step(self) -> f64 {
+        match self {
+            Parameter::LnYoungs | Parameter::LnKp | Parameter::LnKd => 0.075,
+            Parameter::Poisson => 0.02,
+        }
+    }
+
+    /// Whether the actuator gains, not the material, hold this parameter.
+    pub fn is_gain(self) -> bool {
+        matches!(self, Parameter::LnKp | Parameter::LnKd)
+    }
+
+    /// `model` with this parameter moved by `delta` (E and ν kept inside
+    /// the model's bounds, as the fit's own activations keep them).
+    pub fn moved(self, model: &WorldModel, delta: f64) -> WorldModel {
+        match self {
+            Parameter::LnYoungs => moved_material(model, delta.exp(), 0.0),
+            Parameter::Poisson => moved_material(model, 1.0, delta),
+            Parameter::LnKp => {
+                let mut moved = model.clone();
+                moved.actuator.kp *= delta.exp();
+                moved
+            }
+            Parameter::LnKd => {
+                let mut moved = model.clone();
+                moved.actuator.kd *= delta.exp();
+                moved
+            }
+        }
+    }
+}
+
+/// `dm-synth`'s track noise (its `SensorNoise`): 1.5 mm per axis and
+/// frame, and a 1 mm constant bias per track and axis; the defaults of
+/// `dm-fit --identifiability`.
+pub const DEFAULT_TRACK_NOISE_MM: f64 = 1.5;
+pub const DEFAULT_TRACK_OFFSET_MM: f64 = 1.0;
+
+/// The track noise the bound assumes, metres.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrackNoise {
+    /// Independent noise per axis and frame.
+    pub sigma_m: f64,
+    /// Constant offset per track and axis over the clip.
+    pub offset_sigma_m: f64,
+}
+
+/// Sensitivities of the observed training positions: for every track, its
+/// observed frames' ∂x/∂θ (one `[P][3]` block per frame).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackJacobian {
+    pub parameters: Vec<Parameter>,
+    pub tracks: Vec<Vec<Vec<[f64; 3]>>>,
+    /// Observed minus simulated position at the same frames, per track.
+    pub residuals: Vec<Vec<[f64; 3]>>,
+    /// Largest over parameters of ‖x(θ+h) + x(θ−h) − 2 x(θ)‖ / ‖x(θ+h) − x(θ−h)‖
+    /// over all observations: near 0 where the rollout is linear over ±h.
+    pub curvature: Vec<f64>,
+}
+
+impl TrackJacobian {
+    pub fn observation_count(&self) -> usize {
+        self.tracks.iter().map(Vec::len).sum::<usize>() * 3
+    }
+}
+
+/// Fisher information of the tracks about the parameters (P × P), under
+/// `noise` (module docs).
+pub fn fisher_information(jacobian: &TrackJacobian, noise: TrackNoise) -> DMatrix<f64> {
+    let p = jacobian.parameters.len();
+    let var = noise.sigma_m * noise.sigma_m;
+    let offset_var = noise.offset_sigma_m * noise.offset_sigma_m;
+    let mut fisher = DMatrix::<f64>::zeros(p, p);
+    for frames in &jacobian.tracks {
+        let m = frames.len() as f64;
+        if frames.is_empty() {
+            continue;
+        }
+        let c = offset_var / (var + m * offset_var);
+        for axis in 0..3 {
+            let mut sum = vec![0.0; p];
+            for rows in frames {
+                for i in 0..p {
+                    sum[i] += rows[i][axis];
+                    for j in 0..p {
+                        fisher[(i, j)] += rows[i][axis] * rows[j][axis] / var;
+                    }
+                }
+            }
+            for i in 0..p {
+                for j in 0..p {
+                    fisher[(i, j)] -= c * sum[i] * sum[j] / var;
+                }
+            }
+        }
+    }
+    fisher
+}
+
+/// The bound on each parameter's standard deviation with the parameters
+/// marked `estimated` unknown and the rest known; `None` for a known
+/// parameter, infinity where the data cannot tell the estimated ones apart
+/// (a singular block).
+pub fn cramer_rao_std(fisher: &DMatrix<f64>, estimated: &[bool]) -> Vec<Option<f64>> {
+    let free: Vec<usize> = (0..fisher.nrows()).filter(|&i| estimated[i]).collect();
+    let block = DMatrix::from_fn(free.len(), free.len(), |a, b| fisher[(free[a], free[b])]);
+    let inverse = block.clone().cholesky().map(|c| c.inverse());
+    let mut out = vec![None; fisher.nrows()];
+    for (a, &i) in free.iter().enumerate() {
+        out[i] = Some(match &inverse {
+            Some(inv) if inv[(a, a)] > 0.0 => inv[(a, a)].sqrt(),
+            _ => f64::INFINITY,
+        });
+    }
+    out
+}
+
+/// Correlation of the bound's covariance (all parameters estimated); NaN
+/// rows where the information is singular.
+pub fn cramer_rao_correlation(fisher: &DMatrix<f64>) -> DMatrix<f64> {
+    let p = fisher.nrows();
+    match fisher.clone().cholesky().map(|c| c.inverse()) {
+        Some(cov) => DMatrix::from_fn(p, p, |i, j| {
+            cov[(i, j)] / (cov[(i, i)] * cov[(j, j)]).sqrt()
+        }),
+        None => DMatrix::from_element(p, p, f64::NAN),
+    }
+}
+
+/// Sensitivity of the observed training tracks to `parameters` at `model`:
+/// one base rollout and two per parameter over the first `frames` frames.
+/// Each track is followed on the particle nearest its frame-0 observation
+/// (the protocol's Track matching); only frames ≥ 1 where the track is
+/// visible and valid count, as in the fit's track loss.
+pub fn track_jacobian(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    parameters: &[(Parameter, f64)],
+    on_rollout: &mut dyn FnMut(&str),
+) -> Result<TrackJacobian, FitError> {
+    let frames = frames.min(bundle.frame_count());
+    // A diverging rollout is an error of the simulation (NaN or det F ≤ 0);
+    // `on_rollout` has named the parameter it was run for.
+    let rollout = |m: &WorldModel| m.rollout(bundle, frames, &mut |_| {});
+    on_rollout("base");
+    let base = rollout(model)?;
+    let tracks = &bundle.tracks;
+    let first: Vec<[f64; 3]> = base[0].iter().map(|p| p.map(f64::from)).collect();
+    let index = PointIndex::new(&first);
+    let track_count = tracks.object_points.shape()[1];
+    let matched: Vec<Option<usize>> = (0..track_count)
+        .map(|k| {
+            let p = [0, 1, 2].map(|a| f64::from(tracks.object_points[[0, k, a]]));
+            index.nearest(&p, 1).first().map(|n| n.0)
+        })
+        .collect();
+    let observed =
+        |t: usize, k: usize| tracks.object_visibility[[t, k]] && tracks.object_motion_valid[[t, k]];
+    let residuals: Vec<Vec<[f64; 3]>> = matched
+        .iter()
+        .enumerate()
+        .map(|(k, particle)| {
+            let Some(i) = *particle else {
+                return Vec::new();
+            };
+            (1..frames)
+                .filter(|&t| observed(t, k))
+                .map(|t| {
+                    std::array::from_fn(|a| {
+                        f64::from(tracks.object_points[[t, k, a]]) - f64::from(base[t][i][a])
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    let mut columns: Vec<Vec<Vec<[f64; 3]>>> = Vec::with_capacity(parameters.len());
+    let mut curvature = Vec::with_capacity(parameters.len());
+    for &(parameter, step) in parameters {
+        let label = format!("{} ± {step}", parameter.name());
+        on_rollout(&label);
+        let plus = rollout(&parameter.moved(model, step))?;
+        let minus = rollout(&parameter.moved(model, -step))?;
+        let (mut bend, mut slope) = (0.0f64, 0.0f64);
+        let mut column = vec![Vec::new(); track_count];
+        for (k, particle) in matched.iter().enumerate() {
+            let Some(i) = *particle else { continue };
+            for t in 1..frames {
+                if !observed(t, k) {
+                    continue;
+                }
+                let d: [f64; 3] =
+                    std::array::from_fn(|a| f64::from(plus[t][i][a]) - f64::from(minus[t][i][a]));
+                let b: [f64; 3] = std::array::from_fn(|a| {
+                    f64::from(plus[t][i][a]) + f64::from(minus[t][i][a])
+                        - 2.0 * f64::from(base[t][i][a])
+                });
+                bend += b.iter().map(|c| c * c).sum::<f64>();
+                slope += d.iter().map(|c| c * c).sum::<f64>();
+                column[k].push(d.map(|c| c / (2.0 * step)));
+            }
+        }
+        curvature.push(if slope > 0.0 {
+            (bend / slope).sqrt()
+        } else {
+            f64::NAN
+        });
+        columns.push(column);
+    }
+    let tracks_out = (0..track_count)
+        .map(|k| {
+            let observed_frames = residuals[k].len();
+            (0..observed_frames)
+                .map(|f| columns.iter().map(|c| c[k][f]).collect())
+                .collect()
+        })
+        .collect();
+    Ok(TrackJacobian {
+        parameters: parameters.iter().map(|p| p.0).collect(),
+        tracks: tracks_out,
+        residuals,
+        curvature,
+    })
+}
+
+/// A damped Gauss–Newton (Levenberg–Marquardt) step on the parameters:
+/// the least-squares fit of the tracks with each track's constant offset
+/// left free (the residuals and sensitivities are centred per track and
+/// axis over its observed frames), solving (JᵀJ + λ diag JᵀJ) Δθ = Jᵀr.
+/// Returns Δθ in the Jacobian's parameter order and the centred sum of
+/// squared residuals it starts from (m²); `None` where the system is
+/// singular.
+pub fn gauss_newton_step(jacobian: &TrackJacobian, damping: f64) -> Option<(Vec<f64>, f64)> {
+    let p = jacobian.parameters.len();
+    let mut normal = DMatrix::<f64>::zeros(p, p);
+    let mut rhs = nalgebra::DVector::<f64>::zeros(p);
+    for (frames, residuals) in jacobian.tracks.iter().zip(&jacobian.residuals) {
+        let m = frames.len() as f64;
+        if frames.is_empty() {
+            continue;
+        }
+        for axis in 0..3 {
+            let mean_r = residuals.iter().map(|r| r[axis]).sum::<f64>() / m;
+            let mean_j: Vec<f64> = (0..p)
+                .map(|i| frames.iter().map(|rows| rows[i][axis]).sum::<f64>() / m)
+                .collect();
+            for (rows, r) in frames.iter().zip(residuals) {
+                let rc = r[axis] - mean_r;
+                for i in 0..p {
+                    let ji = rows[i][axis] - mean_j[i];
+                    rhs[i] += ji * rc;
+                    for j in 0..p {
+                        normal[(i, j)] += ji * (rows[j][axis] - mean_j[j]);
+                    }
+                }
+            }
+        }
+    }
+    for i in 0..p {
+        normal[(i, i)] *= 1.0 + damping;
+    }
+    let step = normal.cholesky()?.solve(&rhs);
+    Some((
+        step.iter().copied().collect(),
+        centred_cost(&jacobian.residuals),
+    ))
+}
+
+/// The centred sum of squared track residuals at `model` (the quantity
+/// [`gauss_newton_step`] lowers), from one rollout.
+pub fn centred_track_cost(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+) -> Result<f64, FitError> {
+    let base = track_jacobian(model, bundle, frames, &[], &mut |_| {})?;
+    Ok(centred_cost(&base.residuals))
+}
+
+fn centred_cost(residuals: &[Vec<[f64; 3]>]) -> f64 {
+    residuals
+        .iter()
+        .filter(|r| !r.is_empty())
+        .map(|r| {
+            (0..3)
+                .map(|a| {
+                    let mean = r.iter().map(|v| v[a]).sum::<f64>() / r.len() as f64;
+                    r.iter().map(|v| (v[a] - mean).powi(2)).sum::<f64>()
+                })
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+/// `model` with every parameter moved by its entry of `delta`.
+pub fn moved_by(model: &WorldModel, parameters: &[Parameter], delta: &[f64]) -> WorldModel {
+    parameters
+        .iter()
+        .zip(delta)
+        .fold(model.clone(), |m, (p, &d)| p.moved(&m, d))
+}
+
+/// One parameter's row of the report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ParameterBound {
+    pub name: String,
+    /// Central-difference half step.
+    pub step: f64,
+    /// Bound on the standard deviation with every listed parameter estimated.
+    pub std_all_estimated: f64,
+    /// Bound with the actuator gains known (material parameters only).
+    pub std_gains_known: Option<f64>,
+    /// Curvature of the rollout over ±step (see [`TrackJacobian::curvature`]).
+    pub curvature: f64,
+}
+
+/// The bound for a clip: what `identifiability` reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Identifiability {
+    pub noise: TrackNoise,
+    pub observations: usize,
+    pub parameters: Vec<ParameterBound>,
+    /// Correlations of the bound's covariance, in `parameters` order.
+    pub correlation: Vec<Vec<f64>>,
+}
+
+/// Bounds and correlations from a Jacobian.
+pub fn identifiability(
+    jacobian: &TrackJacobian,
+    steps: &[f64],
+    noise: TrackNoise,
+) -> Identifiability {
+    let fisher = fisher_information(jacobian, noise);
+    let p = jacobian.parameters.len();
+    let all = cramer_rao_std(&fisher, &vec![true; p]);
+    let material_only: Vec<bool> = jacobian.parameters.iter().map(|q| !q.is_gain()).collect();
+    let known_gains = cramer_rao_std(&fisher, &material_only);
+    let correlation = cramer_rao_correlation(&fisher);
+    Identifiability {
+        noise,
+        observations: jacobian.observation_count(),
+        parameters: (0..p)
+            .map(|i| ParameterBound {
+                name: jacobian.parameters[i].name().into(),
+                step: steps[i],
+                std_all_estimated: all[i].unwrap_or(f64::NAN),
+                std_gains_known: known_gains[i],
+                curvature: jacobian.curvature[i],
+            })
+            .collect(),
+        correlation: (0..p)
+            .map(|i| (0..p).map(|j| correlation[(i, j)]).collect())
+            .collect(),
+    }
+}
+
+/// The bound at `model` over every [`Parameter`] with its default step,
+/// on the first `frames` frames.
+pub fn identifiability_at(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    noise: TrackNoise,
+    on_rollout: &mut dyn FnMut(&str),
+) -> Result<Identifiability, FitError> {
+    let parameters: Vec<(Parameter, f64)> = Parameter::ALL
+        .iter()
+        .map(|&p| (p, p.default_step()))
+        .collect();
+    let jacobian = track_jacobian(model, bundle, frames, &parameters, on_rollout)?;
+    let steps: Vec<f64> = parameters.iter().map(|p| p.1).collect();
+    Ok(identifiability(&jacobian, &steps, noise))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dense reference: Σ_k,a Jᵀ Σ⁻¹ J with Σ built and inverted explicitly.
+    fn dense_fisher(jacobian: &TrackJacobian, noise: TrackNoise) -> DMatrix<f64> {
+        let p = jacobian.parameters.len();
+        let mut fisher = DMatrix::zeros(p, p);
+        for frames in &jacobian.tracks {
+            let m = frames.len();
+            let sigma = DMatrix::from_fn(m, m, |i, j| {
+                noise.offset_sigma_m.powi(2) + if i == j { noise.sigma_m.powi(2) } else { 0.0 }
+            });
+            let inverse = sigma
+                .try_inverse()
+                .expect("covariance is positive definite");
+            for axis in 0..3 {
+                let j = DMatrix::from_fn(m, p, |t, q| frames[t][q][axis]);
+                fisher += j.transpose() * &inverse * j;
+            }
+        }
+        fisher
+    }
+
+    fn jacobian(tracks: Vec<Vec<Vec<[f64; 3]>>>) -> TrackJacobian {
+        TrackJacobian {
+            parameters: vec![Parameter::LnYoungs, Parameter::LnKp],
+            residuals: tracks.iter().map(|f| vec![[0.0; 3]; f.len()]).collect(),
+            tracks,
+            curvature: vec![0.0, 0.0],
+        }
+    }
+
+    /// Deterministic, unequal sensitivities for tracks of different lengths.
+    fn sample_tracks() -> Vec<Vec<Vec<[f64; 3]>>> {
+        (0..4)
+            .map(|k| {
+                (0..(3 + k))
+                    .map(|t| {
+                        let s = (k * 7 + t) as f64;
+                        vec![
+                            [0.3 * s.sin(), 0.1 * t as f64, 0.02 * k as f64],
+                            [0.5 * (0.7 * s).cos(), -0.05 * t as f64, 0.01],
+                        ]
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn closed_form_matches_the_dense_inverse_of_noise_plus_offset() {
+        let j = jacobian(sample_tracks());
+        let noise = TrackNoise {
+            sigma_m: 1.5e-3,
+            offset_sigma_m: 1e-3,
+        };
+        let fast = fisher_information(&j, noise);
+        let dense = dense_fisher(&j, noise);
+        // Both sums are O(1e6); the Woodbury identity is exact, so only
+        // rounding separates them.
+        const RELATIVE_TOLERANCE: f64 = 1e-10;
+        assert!(
+            (&fast - &dense).norm() <= RELATIVE_TOLERANCE * dense.norm(),
+            "{fast} vs {dense}"
+        );
+    }
+
+    #[test]
+    fn a_constant_shift_carries_no_information_when_offsets_are_free() {
+        // A parameter that only shifts every track by a constant is
+        // indistinguishable from the tracks' offsets once those are
+        // unconstrained; with tight offsets it is measured.
+        let shift: Vec<Vec<Vec<[f64; 3]>>> = (0..5)
+            .map(|_| (0..10).map(|_| vec![[1.0, 0.0, 0.0]]).collect())
+            .collect();
+        let j = TrackJacobian {
+            parameters: vec![Parameter::LnYoungs],
+            residuals: vec![vec![[0.0; 3]; 10]; 5],
+            tracks: shift,
+            curvature: vec![0.0],
+        };
+        let loose = fisher_information(
+            &j,
+            TrackNoise {
+                sigma_m: 1e-3,
+                offset_sigma_m: 1e3,
+            },
+        );
+        let tight = fisher_information(
+            &j,
+            TrackNoise {
+                sigma_m: 1e-3,
+                offset_sigma_m: 0.0,
+            },
+        );
+        assert!(loose[(0, 0)] < 1e-3 * tight[(0, 0)], "{loose} vs {tight}");
+        // No offset: 5 tracks × 10 frames of unit sensitivity over σ².
+        assert!((tight[(0, 0)] - 50.0 / 1e-6).abs() < 1e-6 * tight[(0, 0)]);
+    }
+
+    #[test]
+    fn a_compensating_gain_widens_the_bound() {
+        // E and k_p move the tracks almost alike: estimated together their
+        // bounds widen far beyond E's bound with the gain known.
+        let tracks: Vec<Vec<Vec<[f64; 3]>>> = (0..6)
+            .map(|k| {
+                (0..8)
+                    .map(|t| {
+                        let s = 1e-2 * (1.0 + t as f64 + k as f64);
+                        vec![[s, 0.0, 0.0], [0.98 * s, 1e-4 * t as f64, 0.0]]
+                    })
+                    .collect()
+            })
+            .collect();
+        let j = jacobian(tracks);
+        let noise = TrackNoise {
+            sigma_m: 1.5e-3,
+            offset_sigma_m: 0.0,
+        };
+        let fisher = fisher_information(&j, noise);
+        let both = cramer_rao_std(&fisher, &[true, true]);
+        let known = cramer_rao_std(&fisher, &[true, false]);
+        let e_both = both[0].expect("estimated");
+        let e_known = known[0].expect("estimated");
+        assert!(known[1].is_none());
+        assert!(e_both > 10.0 * e_known, "{e_both} vs {e_known}");
+        // The known-gain bound is 1/√F_EE exactly.
+        assert!((e_known - fisher[(0, 0)].sqrt().recip()).abs() < 1e-12 * e_known);
+        let corr = cramer_rao_correlation(&fisher);
+        assert!(corr[(0, 1)] < -0.9, "E and k_p compensate: {corr}");
+    }
+
+    #[test]
+    fn gauss_newton_recovers_a_linear_model_up_to_free_offsets() {
+        // Residuals made by a known Δθ through the sample sensitivities,
+        // plus a constant offset per track: the undamped step is Δθ
+        // exactly, whatever the offsets.
+        let tracks = sample_tracks();
+        let truth = [0.3, -0.7];
+        let residuals: Vec<Vec<[f64; 3]>> = tracks
+            .iter()
+            .enumerate()
+            .map(|(k, frames)| {
+                frames
+                    .iter()
+                    .map(|rows| {
+                        std::array::from_fn(|a| {
+                            truth[0] * rows[0][a] + truth[1] * rows[1][a] + 0.01 * (k + a) as f64
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut j = jacobian(tracks);
+        j.residuals = residuals;
+        let (step, cost) = gauss_newton_step(&j, 0.0).expect("regular system");
+        // A direct solve of a well-conditioned 2×2 system: rounding only.
+        const TOLERANCE: f64 = 1e-9;
+        assert!((step[0] - truth[0]).abs() < TOLERANCE, "{step:?}");
+        assert!((step[1] - truth[1]).abs() < TOLERANCE, "{step:?}");
+        assert!(cost > 0.0);
+        // Damping shortens the step.
+        let (damped, _) = gauss_newton_step(&j, 1.0).expect("regular system");
+        let norm = |v: &[f64]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        assert!(norm(&damped) < norm(&step));
+    }
+
+    #[test]
+    fn singular_information_reads_as_an_infinite_bound() {
+        let j = TrackJacobian {
+            parameters: vec![Parameter::LnYoungs, Parameter::Poisson],
+            tracks: vec![vec![vec![[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]; 4]],
+            residuals: vec![vec![[0.0; 3]; 4]],
+            curvature: vec![0.0, 0.0],
+        };
+        let fisher = fisher_information(
+            &j,
+            TrackNoise {
+                sigma_m: 1e-3,
+                offset_sigma_m: 0.0,
+            },
+        );
+        let std = cramer_rao_std(&fisher, &[true, true]);
+        assert_eq!(std[1], Some(f64::INFINITY));
+    }
+}

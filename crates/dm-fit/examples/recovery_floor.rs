@@ -24,6 +24,8 @@ use dm_synth::TruthFile;
 use ndarray::{Array2, Array3};
 use std::path::PathBuf;
 
+mod support;
+
 #[derive(Parser)]
 struct Args {
     bundle: PathBuf,
@@ -131,16 +133,7 @@ fn main() -> Result<()> {
     };
     add("untrained".into(), &untrained)?;
 
-    // The truth's homogeneous material: its E, ν and expert mix.
-    let mut true_material = untrained.clone();
-    let truth_weights = dm_synth::truth::HOMOGENEOUS_EXPERT_WEIGHTS;
-    true_material.params = dm_mpm::PatchParams::uniform(
-        untrained.patches.patch_count(),
-        &untrained.bounds,
-        truth_file.material.e_pa,
-        truth_file.material.nu,
-        truth_weights.map(f64::ln),
-    );
+    let true_material = support::with_true_material(&untrained, &truth_file);
     add("true E, ν; default gains".into(), &true_material)?;
 
     // The truth's grip, on the model's hand tracks.
@@ -150,14 +143,7 @@ fn main() -> Result<()> {
     // How sharply the data pins the material: the bar's edges (E ±25 %,
     // ν ±0.05) with everything else true.
     for (e_factor, nu_shift) in [(0.75, 0.0), (1.25, 0.0), (1.0, -0.05), (1.0, 0.05)] {
-        let mut shifted = true_grip.clone();
-        shifted.params = dm_mpm::PatchParams::uniform(
-            untrained.patches.patch_count(),
-            &untrained.bounds,
-            e_factor * truth_file.material.e_pa,
-            truth_file.material.nu + nu_shift,
-            truth_weights.map(f64::ln),
-        );
+        let shifted = support::with_material(&true_grip, &truth_file, e_factor, nu_shift);
         add(
             format!("E ×{e_factor}, ν {nu_shift:+}; truth's grip"),
             &shifted,

@@ -9,8 +9,10 @@
 //! axis (the sensor's bias and the track's match to a particle), the
 //! tracks' Fisher information about θ is
 //!
-//!     F = Σ_{track, axis} Jᵀ Σ⁻¹ J,   Σ = σ² I + σ_o² 1 1ᵀ,
-//!     Σ⁻¹ = (I − c 1 1ᵀ) / σ²,        c = σ_o² / (σ² + m σ_o²),
+//! ```text
+//! F = Σ_{track, axis} Jᵀ Σ⁻¹ J,   Σ = σ² I + σ_o² 1 1ᵀ,
+//! Σ⁻¹ = (I − c 1 1ᵀ) / σ²,        c = σ_o² / (σ² + m σ_o²),
+//! ```
 //!
 //! with J the (m × P) sensitivity of that track's simulated positions over
 //! its m observed training frames to the P parameters, taken by central

@@ -123,6 +123,35 @@ fn default_track_offset_mm() -> f64 {
 }
 
 impl FitOptions {
+    /// Refuses a track noise the bound cannot use (checked before the fit
+    /// starts, so a long fit never ends on it): σ must be positive, the
+    /// offset not negative, both finite.
+    pub fn validate_track_noise(&self) -> Result<(), FitError> {
+        let checks = [
+            (
+                "--track-noise-mm",
+                self.track_noise_mm,
+                self.track_noise_mm > 0.0,
+            ),
+            (
+                "--track-offset-mm",
+                self.track_offset_mm,
+                self.track_offset_mm >= 0.0,
+            ),
+        ];
+        for (option, value, valid) in checks {
+            if !(valid && value.is_finite()) {
+                return Err(FitError::InvalidOption {
+                    option: option.into(),
+                    problem: format!(
+                        "{value} mm: needs a finite value, positive for the noise and not negative for the offset"
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// The track noise `--identifiability` assumes, in metres.
     pub fn track_noise(&self) -> TrackNoise {
         TrackNoise {
@@ -338,6 +367,7 @@ fn fit_stages(
     initial: Option<WorldModel>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
+    options.validate_track_noise()?;
     std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut state = if resume && checkpoint_path.is_file() {

@@ -187,3 +187,47 @@ fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
         "the residual stage did not change the network"
     );
 }
+
+/// `--identifiability` (issue 3): the Cramér–Rao bound is printed, one
+/// entry per parameter, and a bad noise value is refused naming the flag.
+#[test]
+fn issue3_identifiability_is_printed_and_bad_noise_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = tiny_scene(dir.path(), Preset::Rope, 4);
+    let stages = [
+        "--residual",
+        "none",
+        "--rgb-iters",
+        "0",
+        "--gain-evals",
+        "0",
+        "--identifiability",
+    ];
+    let output = fit_with(
+        &scene,
+        &dir.path().join("model"),
+        &[&FAST_PHYSICS[..4], &FAST_PHYSICS[6..], &stages].concat(),
+    );
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("Cramér–Rao bound"))
+        .unwrap_or_else(|| panic!("no bound line in {stdout}"));
+    for name in ["E ±", "nu ±", "kp ±", "kd ±"] {
+        assert!(line.contains(name), "{name} missing: {line}");
+    }
+
+    let refused = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+        .arg(&scene)
+        .arg("--out")
+        .arg(dir.path().join("refused"))
+        .args(["--identifiability", "--track-noise-mm", "0"])
+        .output()
+        .expect("dm-fit runs");
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("--track-noise-mm"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+}

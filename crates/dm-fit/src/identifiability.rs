@@ -401,8 +401,14 @@ pub fn identifiability(
 ) -> Identifiability {
     let fisher = fisher_information(jacobian, noise);
     let p = jacobian.parameters.len();
-    let all = cramer_rao_std(&fisher, &vec![true; p]);
-    let material_only: Vec<bool> = jacobian.parameters.iter().map(|q| !q.is_gain()).collect();
+    // A parameter that moves no track (the gains of rigid actuators) is not
+    // part of the model's fit: leave it out rather than let it make the
+    // whole information singular. Its bound reads as infinite (JSON null).
+    let informative: Vec<bool> = (0..p).map(|i| fisher[(i, i)] > 0.0).collect();
+    let all = cramer_rao_std(&fisher, &informative);
+    let material_only: Vec<bool> = (0..p)
+        .map(|i| informative[i] && !jacobian.parameters[i].is_gain())
+        .collect();
     let known_gains = cramer_rao_std(&fisher, &material_only);
     let correlation = cramer_rao_correlation(&fisher);
     Identifiability {
@@ -412,8 +418,12 @@ pub fn identifiability(
             .map(|i| ParameterBound {
                 name: jacobian.parameters[i].name().into(),
                 step: steps[i],
-                std_all_estimated: all[i].unwrap_or(f64::NAN),
-                std_gains_known: known_gains[i],
+                std_all_estimated: all[i].unwrap_or(f64::INFINITY),
+                std_gains_known: if jacobian.parameters[i].is_gain() {
+                    None
+                } else {
+                    Some(known_gains[i].unwrap_or(f64::INFINITY))
+                },
                 curvature: jacobian.curvature[i],
             })
             .collect(),
@@ -607,6 +617,32 @@ mod tests {
         let (damped, _) = gauss_newton_step(&j, 1.0).expect("regular system");
         let norm = |v: &[f64]| v.iter().map(|c| c * c).sum::<f64>().sqrt();
         assert!(norm(&damped) < norm(&step));
+    }
+
+    #[test]
+    fn a_parameter_that_moves_no_track_is_left_out() {
+        // Rigid actuators: the gains' columns are zero. E keeps its bound.
+        let tracks: Vec<Vec<Vec<[f64; 3]>>> = (0..3)
+            .map(|k| {
+                (0..5)
+                    .map(|t| vec![[0.01 * (1 + t + k) as f64, 0.0, 0.0], [0.0; 3]])
+                    .collect()
+            })
+            .collect();
+        let j = jacobian(tracks);
+        let noise = TrackNoise {
+            sigma_m: 1e-3,
+            offset_sigma_m: 0.0,
+        };
+        let bound = identifiability(&j, &[0.075, 0.075], noise);
+        let e = &bound.parameters[0];
+        assert!(
+            e.std_all_estimated.is_finite() && e.std_all_estimated > 0.0,
+            "{e:?}"
+        );
+        assert_eq!(e.std_gains_known, Some(e.std_all_estimated));
+        assert_eq!(bound.parameters[1].std_all_estimated, f64::INFINITY);
+        assert_eq!(bound.parameters[1].std_gains_known, None);
     }
 
     #[test]

@@ -88,7 +88,10 @@ fn main() -> Result<()> {
             .iter()
             .map(|row| {
                 let name = row["name"].as_str().unwrap_or("?");
-                let sigma = row["std_all_estimated"].as_f64().unwrap_or(f64::NAN);
+                // JSON null: the parameter moves no track (rigid actuators' gains).
+                let Some(sigma) = row["std_all_estimated"].as_f64() else {
+                    return format!("{name}: not moved by the tracks");
+                };
                 match name.strip_prefix("ln_") {
                     Some(scale) => format!("{scale} ±{:.1} %", 100.0 * sigma.exp_m1()),
                     None => format!("{name} ±{sigma:.3}"),

@@ -122,8 +122,8 @@ pub struct TrackJacobian {
     pub tracks: Vec<Vec<Vec<[f64; 3]>>>,
     /// Observed minus simulated position at the same frames, per track.
     pub residuals: Vec<Vec<[f64; 3]>>,
-    /// Largest over parameters of ‖x(θ+h) + x(θ−h) − 2 x(θ)‖ / ‖x(θ+h) − x(θ−h)‖
-    /// over all observations: near 0 where the rollout is linear over ±h.
+    /// Per parameter, ‖x(θ+h) + x(θ−h) − 2 x(θ)‖ / ‖x(θ+h) − x(θ−h)‖ over
+    /// all observations: near 0 where the rollout is linear over ±h.
     pub curvature: Vec<f64>,
 }
 

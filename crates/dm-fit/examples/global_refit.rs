@@ -13,13 +13,11 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_bundle::Bundle;
 use dm_fit::identifiability::{
     Parameter, centred_track_cost, gauss_newton_step, moved_by, track_jacobian,
 };
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
-use dm_synth::TruthFile;
 use std::path::PathBuf;
 
 mod support;
@@ -31,14 +29,8 @@ struct Args {
     /// `truth`, `untrained`, or a fitted model directory.
     #[arg(long, default_value = "truth")]
     start: String,
-    /// Grasp radius of the actuators (m), replacing the start's.
-    #[arg(long)]
-    grasp_radius: Option<f64>,
-    /// Actuator gains k_p (1/s²) and k_d (1/s), replacing the start's.
-    #[arg(long)]
-    kp: Option<f64>,
-    #[arg(long)]
-    kd: Option<f64>,
+    #[command(flatten)]
+    grip: support::GripOverride,
     /// Parameters to refit (ln_E, nu, ln_kp, ln_kd); the rest stay.
     #[arg(long, value_delimiter = ',', default_value = "ln_E,nu,ln_kp,ln_kd")]
     parameters: Vec<String>,
@@ -54,10 +46,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let bundle = Bundle::open(&args.bundle)
-        .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
-    let truth: TruthFile = dm_bundle::read_json(&args.truth)
-        .with_context(|| format!("reading {}", args.truth.display()))?;
+    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
     let untrained = WorldModel::from_bundle(&bundle, &args.fit.model)?;
     let mut model = match args.start.as_str() {
         "truth" => {
@@ -69,15 +58,7 @@ fn main() -> Result<()> {
         dir => dm_bundle::read_json::<WorldModel>(&PathBuf::from(dir).join("model.json"))
             .with_context(|| format!("reading the model in {dir}"))?,
     };
-    if let Some(radius) = args.grasp_radius {
-        model.actuator.grasp_radius = radius;
-    }
-    if let Some(kp) = args.kp {
-        model.actuator.kp = kp;
-    }
-    if let Some(kd) = args.kd {
-        model.actuator.kd = kd;
-    }
+    args.grip.apply(&mut model.actuator);
     let frames = bundle.meta.split.train[1];
     let parameters: Vec<(Parameter, f64)> = Parameter::ALL
         .iter()

@@ -13,11 +13,9 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_bundle::Bundle;
 use dm_fit::identifiability::{TrackNoise, identifiability_at};
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
-use dm_synth::TruthFile;
 use dm_synth::sensor::SensorNoise;
 use std::path::PathBuf;
 
@@ -49,10 +47,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let bundle = Bundle::open(&args.bundle)
-        .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
-    let truth: TruthFile = dm_bundle::read_json(&args.truth)
-        .with_context(|| format!("reading {}", args.truth.display()))?;
+    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
     let model = match &args.at_model {
         Some(dir) => dm_bundle::read_json::<WorldModel>(&dir.join("model.json"))
             .with_context(|| format!("reading the model in {}", dir.display()))?,

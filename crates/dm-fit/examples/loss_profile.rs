@@ -9,16 +9,14 @@
 //!
 //! Without gains the truth's grip is used.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Parser;
-use dm_bundle::Bundle;
 use dm_fit::loss::{
     LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
     frame_loss,
 };
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
-use dm_synth::TruthFile;
 use std::path::PathBuf;
 
 mod support;
@@ -27,12 +25,8 @@ mod support;
 struct Args {
     bundle: PathBuf,
     truth: PathBuf,
-    #[arg(long)]
-    kp: Option<f64>,
-    #[arg(long)]
-    kd: Option<f64>,
-    #[arg(long)]
-    grasp_radius: Option<f64>,
+    #[command(flatten)]
+    grip: support::GripOverride,
     /// Factors on the true E.
     #[arg(long, value_delimiter = ',', default_value = "0.6,0.75,1,1.25")]
     factors: Vec<f64>,
@@ -42,21 +36,10 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let bundle = Bundle::open(&args.bundle)
-        .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
-    let truth: TruthFile = dm_bundle::read_json(&args.truth)
-        .with_context(|| format!("reading {}", args.truth.display()))?;
+    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
     let mut base = WorldModel::from_bundle(&bundle, &args.fit.model)?;
     base.actuator = dm_synth::truth::TRUTH_GRIP;
-    if let Some(kp) = args.kp {
-        base.actuator.kp = kp;
-    }
-    if let Some(kd) = args.kd {
-        base.actuator.kd = kd;
-    }
-    if let Some(radius) = args.grasp_radius {
-        base.actuator.grasp_radius = radius;
-    }
+    args.grip.apply(&mut base.actuator);
     let frames = bundle.meta.split.train[1];
     let track = TrackMatch::new(
         &base.particles,

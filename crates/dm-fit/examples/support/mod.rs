@@ -31,3 +31,44 @@ pub fn with_material(
     );
     moved
 }
+
+/// The scene bundle and its truth file, errors naming the file.
+pub fn open_scene(
+    bundle: &std::path::Path,
+    truth: &std::path::Path,
+) -> anyhow::Result<(dm_bundle::Bundle, TruthFile)> {
+    use anyhow::Context;
+    let opened = dm_bundle::Bundle::open(bundle)
+        .with_context(|| format!("reading bundle {}", bundle.display()))?;
+    let truth_file: TruthFile =
+        dm_bundle::read_json(truth).with_context(|| format!("reading {}", truth.display()))?;
+    Ok((opened, truth_file))
+}
+
+/// Actuator values that replace the start model's where given.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct GripOverride {
+    /// Spring gain k_p (1/s²).
+    #[arg(long)]
+    pub kp: Option<f64>,
+    /// Damper gain k_d (1/s).
+    #[arg(long)]
+    pub kd: Option<f64>,
+    /// Grasp radius (m).
+    #[arg(long)]
+    pub grasp_radius: Option<f64>,
+}
+
+impl GripOverride {
+    pub fn apply(&self, actuator: &mut dm_mpm::ActuatorConfig) {
+        if let Some(kp) = self.kp {
+            actuator.kp = kp;
+        }
+        if let Some(kd) = self.kd {
+            actuator.kd = kd;
+        }
+        if let Some(radius) = self.grasp_radius {
+            actuator.grasp_radius = radius;
+        }
+    }
+}

@@ -23,12 +23,12 @@
 //! model's own mismatch to the world, so a parameter whose bound is wider
 //! than a tolerance cannot be recovered to that tolerance from the clip.
 
+use crate::loss::{ObservedFrame, TrackMatch};
 use crate::material_fit::FitError;
 use crate::sensitivity::moved_material;
 use dm_bundle::Bundle;
 use dm_model::WorldModel;
-use dm_mpm::neighbors::PointIndex;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 /// A fitted parameter the information is taken over. Scale parameters are
@@ -131,39 +131,65 @@ impl TrackJacobian {
     pub fn observation_count(&self) -> usize {
         self.tracks.iter().map(Vec::len).sum::<usize>() * 3
     }
+
+    /// Σ over tracks and axes of the squared residuals about the track's
+    /// mean (m²): the least-squares cost with every track's offset free.
+    pub fn centred_cost(&self) -> f64 {
+        self.residuals
+            .iter()
+            .filter(|r| !r.is_empty())
+            .map(|r| {
+                (0..3)
+                    .map(|a| {
+                        let mean = r.iter().map(|v| v[a]).sum::<f64>() / r.len() as f64;
+                        r.iter().map(|v| (v[a] - mean).powi(2)).sum::<f64>()
+                    })
+                    .sum::<f64>()
+            })
+            .sum()
+    }
+}
+
+/// Σ over tracks and axes of Σ_t j_t j_tᵀ − c(m) s sᵀ (s = Σ_t j_t, m the
+/// track's observed frames) and of Σ_t j_t r_t − c(m) s Σ_t r_t: the
+/// normal matrix and right-hand side of least squares whose inverse
+/// covariance per track is I − c 1 1ᵀ (up to a scale).
+fn offset_weighted_normal(
+    jacobian: &TrackJacobian,
+    c_of_frames: impl Fn(f64) -> f64,
+) -> (DMatrix<f64>, DVector<f64>) {
+    let p = jacobian.parameters.len();
+    let mut normal = DMatrix::<f64>::zeros(p, p);
+    let mut rhs = DVector::<f64>::zeros(p);
+    for (frames, residuals) in jacobian.tracks.iter().zip(&jacobian.residuals) {
+        if frames.is_empty() {
+            continue;
+        }
+        let c = c_of_frames(frames.len() as f64);
+        for axis in 0..3 {
+            let mut sum = DVector::<f64>::zeros(p);
+            let mut sum_r = 0.0;
+            for (rows, r) in frames.iter().zip(residuals) {
+                let j = DVector::from_fn(p, |i, _| rows[i][axis]);
+                normal += &j * j.transpose();
+                rhs += &j * r[axis];
+                sum += j;
+                sum_r += r[axis];
+            }
+            normal -= c * &sum * sum.transpose();
+            rhs -= c * sum_r * sum;
+        }
+    }
+    (normal, rhs)
 }
 
 /// Fisher information of the tracks about the parameters (P × P), under
 /// `noise` (module docs).
 pub fn fisher_information(jacobian: &TrackJacobian, noise: TrackNoise) -> DMatrix<f64> {
-    let p = jacobian.parameters.len();
     let var = noise.sigma_m * noise.sigma_m;
     let offset_var = noise.offset_sigma_m * noise.offset_sigma_m;
-    let mut fisher = DMatrix::<f64>::zeros(p, p);
-    for frames in &jacobian.tracks {
-        let m = frames.len() as f64;
-        if frames.is_empty() {
-            continue;
-        }
-        let c = offset_var / (var + m * offset_var);
-        for axis in 0..3 {
-            let mut sum = vec![0.0; p];
-            for rows in frames {
-                for i in 0..p {
-                    sum[i] += rows[i][axis];
-                    for j in 0..p {
-                        fisher[(i, j)] += rows[i][axis] * rows[j][axis] / var;
-                    }
-                }
-            }
-            for i in 0..p {
-                for j in 0..p {
-                    fisher[(i, j)] -= c * sum[i] * sum[j] / var;
-                }
-            }
-        }
-    }
-    fisher
+    let (normal, _) = offset_weighted_normal(jacobian, |m| offset_var / (var + m * offset_var));
+    normal / var
 }
 
 /// The bound on each parameter's standard deviation with the parameters
@@ -215,24 +241,20 @@ pub fn track_jacobian(
     on_rollout("base");
     let base = rollout(model)?;
     let tracks = &bundle.tracks;
-    let first: Vec<[f64; 3]> = base[0].iter().map(|p| p.map(f64::from)).collect();
-    let index = PointIndex::new(&first);
-    let track_count = tracks.object_points.shape()[1];
-    let matched: Vec<Option<usize>> = (0..track_count)
-        .map(|k| {
-            let p = [0, 1, 2].map(|a| f64::from(tracks.object_points[[0, k, a]]));
-            index.nearest(&p, 1).first().map(|n| n.0)
-        })
-        .collect();
+    // The fit's own matching (loss::TrackMatch): each tracked point on the
+    // particle nearest its frame-0 observation.
+    let matched = TrackMatch::new(
+        &model.particles,
+        &ObservedFrame::from_tracks(tracks, 0)?.points,
+    )?;
+    let matched = matched.particles();
+    let track_count = matched.len();
     let observed =
         |t: usize, k: usize| tracks.object_visibility[[t, k]] && tracks.object_motion_valid[[t, k]];
     let residuals: Vec<Vec<[f64; 3]>> = matched
         .iter()
         .enumerate()
-        .map(|(k, particle)| {
-            let Some(i) = *particle else {
-                return Vec::new();
-            };
+        .map(|(k, &i)| {
             (1..frames)
                 .filter(|&t| observed(t, k))
                 .map(|t| {
@@ -252,8 +274,7 @@ pub fn track_jacobian(
         let minus = rollout(&parameter.moved(model, -step))?;
         let (mut bend, mut slope) = (0.0f64, 0.0f64);
         let mut column = vec![Vec::new(); track_count];
-        for (k, particle) in matched.iter().enumerate() {
-            let Some(i) = *particle else { continue };
+        for (k, &i) in matched.iter().enumerate() {
             for t in 1..frames {
                 if !observed(t, k) {
                     continue;
@@ -300,39 +321,13 @@ pub fn track_jacobian(
 /// squared residuals it starts from (m²); `None` where the system is
 /// singular.
 pub fn gauss_newton_step(jacobian: &TrackJacobian, damping: f64) -> Option<(Vec<f64>, f64)> {
-    let p = jacobian.parameters.len();
-    let mut normal = DMatrix::<f64>::zeros(p, p);
-    let mut rhs = nalgebra::DVector::<f64>::zeros(p);
-    for (frames, residuals) in jacobian.tracks.iter().zip(&jacobian.residuals) {
-        let m = frames.len() as f64;
-        if frames.is_empty() {
-            continue;
-        }
-        for axis in 0..3 {
-            let mean_r = residuals.iter().map(|r| r[axis]).sum::<f64>() / m;
-            let mean_j: Vec<f64> = (0..p)
-                .map(|i| frames.iter().map(|rows| rows[i][axis]).sum::<f64>() / m)
-                .collect();
-            for (rows, r) in frames.iter().zip(residuals) {
-                let rc = r[axis] - mean_r;
-                for i in 0..p {
-                    let ji = rows[i][axis] - mean_j[i];
-                    rhs[i] += ji * rc;
-                    for j in 0..p {
-                        normal[(i, j)] += ji * (rows[j][axis] - mean_j[j]);
-                    }
-                }
-            }
-        }
-    }
-    for i in 0..p {
+    // Free offsets: c = 1/m centres each track's sensitivities and residuals.
+    let (mut normal, rhs) = offset_weighted_normal(jacobian, |m| 1.0 / m);
+    for i in 0..normal.nrows() {
         normal[(i, i)] *= 1.0 + damping;
     }
     let step = normal.cholesky()?.solve(&rhs);
-    Some((
-        step.iter().copied().collect(),
-        centred_cost(&jacobian.residuals),
-    ))
+    Some((step.iter().copied().collect(), jacobian.centred_cost()))
 }
 
 /// The centred sum of squared track residuals at `model` (the quantity
@@ -342,23 +337,7 @@ pub fn centred_track_cost(
     bundle: &Bundle,
     frames: usize,
 ) -> Result<f64, FitError> {
-    let base = track_jacobian(model, bundle, frames, &[], &mut |_| {})?;
-    Ok(centred_cost(&base.residuals))
-}
-
-fn centred_cost(residuals: &[Vec<[f64; 3]>]) -> f64 {
-    residuals
-        .iter()
-        .filter(|r| !r.is_empty())
-        .map(|r| {
-            (0..3)
-                .map(|a| {
-                    let mean = r.iter().map(|v| v[a]).sum::<f64>() / r.len() as f64;
-                    r.iter().map(|v| (v[a] - mean).powi(2)).sum::<f64>()
-                })
-                .sum::<f64>()
-        })
-        .sum()
+    Ok(track_jacobian(model, bundle, frames, &[], &mut |_| {})?.centred_cost())
 }
 
 /// `model` with every parameter moved by its entry of `delta`.

@@ -210,16 +210,22 @@ pub fn cramer_rao_std(fisher: &DMatrix<f64>, estimated: &[bool]) -> Vec<Option<f
     out
 }
 
-/// Correlation of the bound's covariance (all parameters estimated); NaN
-/// rows where the information is singular.
-pub fn cramer_rao_correlation(fisher: &DMatrix<f64>) -> DMatrix<f64> {
+/// Correlation of the bound's covariance over the parameters marked
+/// `estimated`; NaN rows for the others, and everywhere when that block of
+/// the information is singular.
+pub fn cramer_rao_correlation(fisher: &DMatrix<f64>, estimated: &[bool]) -> DMatrix<f64> {
     let p = fisher.nrows();
-    match fisher.clone().cholesky().map(|c| c.inverse()) {
-        Some(cov) => DMatrix::from_fn(p, p, |i, j| {
-            cov[(i, j)] / (cov[(i, i)] * cov[(j, j)]).sqrt()
-        }),
-        None => DMatrix::from_element(p, p, f64::NAN),
+    let free: Vec<usize> = (0..p).filter(|&i| estimated[i]).collect();
+    let block = DMatrix::from_fn(free.len(), free.len(), |a, b| fisher[(free[a], free[b])]);
+    let mut out = DMatrix::from_element(p, p, f64::NAN);
+    if let Some(cov) = block.cholesky().map(|c| c.inverse()) {
+        for (a, &i) in free.iter().enumerate() {
+            for (b, &j) in free.iter().enumerate() {
+                out[(i, j)] = cov[(a, b)] / (cov[(a, a)] * cov[(b, b)]).sqrt();
+            }
+        }
     }
+    out
 }
 
 /// Sensitivity of the observed training tracks to `parameters` at `model`:
@@ -389,7 +395,7 @@ pub fn identifiability(
         .map(|i| informative[i] && !jacobian.parameters[i].is_gain())
         .collect();
     let known_gains = cramer_rao_std(&fisher, &material_only);
-    let correlation = cramer_rao_correlation(&fisher);
+    let correlation = cramer_rao_correlation(&fisher, &informative);
     Identifiability {
         noise,
         observations: jacobian.observation_count(),
@@ -559,7 +565,7 @@ mod tests {
         assert!(e_both > 10.0 * e_known, "{e_both} vs {e_known}");
         // The known-gain bound is 1/√F_EE exactly.
         assert!((e_known - fisher[(0, 0)].sqrt().recip()).abs() < 1e-12 * e_known);
-        let corr = cramer_rao_correlation(&fisher);
+        let corr = cramer_rao_correlation(&fisher, &[true, true]);
         assert!(corr[(0, 1)] < -0.9, "E and k_p compensate: {corr}");
     }
 
@@ -622,6 +628,9 @@ mod tests {
         assert_eq!(e.std_gains_known, Some(e.std_all_estimated));
         assert_eq!(bound.parameters[1].std_all_estimated, f64::INFINITY);
         assert_eq!(bound.parameters[1].std_gains_known, None);
+        // The left-out gain does not blank the others' correlations.
+        assert_eq!(bound.correlation[0][0], 1.0);
+        assert!(bound.correlation[1][1].is_nan());
     }
 
     #[test]

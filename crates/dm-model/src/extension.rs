@@ -276,22 +276,31 @@ impl ModelExtension {
     }
 
     /// Hand anchors driving the model at (possibly fractional) frame
-    /// `t + hand_lag_frames`.
-    pub fn hand_anchors(&self, bundle: &Bundle, t: usize) -> Vec<[f64; 3]> {
-        hand_anchors_at(bundle, t as f64 + self.hand_lag_frames)
+    /// `t + hand_lag_frames`, the track smoothed with σ `smoothing_frames`.
+    pub fn hand_anchors(&self, bundle: &Bundle, t: usize, smoothing_frames: f64) -> Vec<[f64; 3]> {
+        hand_anchors_at(bundle, t as f64 + self.hand_lag_frames, smoothing_frames)
     }
 }
 
 /// The recorded hand anchors at fractional frame `time` (linear
-/// interpolation, held at the first and last frame).
-pub fn hand_anchors_at(bundle: &Bundle, time: f64) -> Vec<[f64; 3]> {
+/// interpolation, held at the first and last frame), smoothed with σ
+/// `smoothing_frames` (`crate::hand_filter`; 0 reads the raw track).
+pub fn hand_anchors_at(bundle: &Bundle, time: f64, smoothing_frames: f64) -> Vec<[f64; 3]> {
     let last = bundle.frame_count().saturating_sub(1);
     let time = time.clamp(0.0, last as f64);
     let t0 = (time.floor() as usize).min(last);
     let t1 = (t0 + 1).min(last);
     let w = time - t0 as f64;
-    let a = crate::hand_anchors(bundle, t0);
-    let b = crate::hand_anchors(bundle, t1);
+    let tracks = &bundle.tracks;
+    let frame = |t| {
+        crate::hand_filter::smoothed_frame(
+            &tracks.hand_points,
+            &tracks.hand_visibility,
+            t,
+            smoothing_frames,
+        )
+    };
+    let (a, b) = (frame(t0), frame(t1));
     a.iter()
         .zip(&b)
         .map(|(p, q)| [0, 1, 2].map(|k| p[k] + w * (q[k] - p[k])))

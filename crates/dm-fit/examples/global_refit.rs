@@ -31,6 +31,8 @@ struct Args {
     start: String,
     #[command(flatten)]
     grip: support::GripOverride,
+    #[command(flatten)]
+    scene: support::SceneOverride,
     /// Parameters to refit (ln_E, nu, ln_kp, ln_kd); the rest stay.
     #[arg(long, value_delimiter = ',', default_value = "ln_E,nu,ln_kp,ln_kd")]
     parameters: Vec<String>,
@@ -46,7 +48,8 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let (mut bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    args.scene.apply(&mut bundle, &truth)?;
     let untrained = WorldModel::from_bundle(&bundle, &args.fit.model)?;
     let mut model = match args.start.as_str() {
         "truth" => {

@@ -72,3 +72,193 @@ impl GripOverride {
         }
     }
 }
+
+/// What the analysis examples may replace in a synthetic scene's bundle.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct SceneOverride {
+    /// Drive the hands by the truth's own anchors (no tracker noise, no
+    /// dropout) instead of the bundle's recorded hand track.
+    #[arg(long)]
+    pub exact_hands: bool,
+    /// Start the model from every truth particle at its exact first-frame
+    /// position (reruns the truth simulation) instead of the bundle's
+    /// noisy random half.
+    #[arg(long)]
+    pub exact_particles: bool,
+    /// With --exact-particles: keep a seeded random subset of this many.
+    #[arg(long, requires = "exact_particles")]
+    pub keep_particles: Option<usize>,
+    /// With --exact-particles: add this Gaussian noise (mm) to each
+    /// coordinate, as dm-synth does to the bundle's particles.
+    #[arg(long, requires = "exact_particles", default_value_t = 0.0)]
+    pub particle_noise_mm: f64,
+    /// With --exact-particles: take them from a truth simulation of the
+    /// same scene filled with this many particles (a regular lattice of
+    /// another spacing) instead of the scene's own.
+    #[arg(long, requires = "exact_particles")]
+    pub lattice_particles: Option<usize>,
+    /// Double the bundle's first-frame particles: each adds the midpoint
+    /// to a seeded random one of its 6 nearest neighbours of the same kind
+    /// (surface or interior).
+    #[arg(long)]
+    pub densify: bool,
+}
+
+impl SceneOverride {
+    pub fn apply(&self, bundle: &mut dm_bundle::Bundle, truth: &TruthFile) -> anyhow::Result<()> {
+        if self.exact_hands {
+            replace_hands_by_truth(bundle, truth)?;
+        }
+        if self.exact_particles {
+            let mut source = truth.clone();
+            if let Some(n) = self.lattice_particles {
+                source.config.truth_particles = n;
+            }
+            replace_particles_by_truth(
+                bundle,
+                &source,
+                self.keep_particles,
+                self.particle_noise_mm,
+            )?;
+        }
+        if self.densify {
+            densify_particles(bundle, truth.config.seed);
+        }
+        Ok(())
+    }
+}
+
+/// See [`SceneOverride::densify`].
+pub fn densify_particles(bundle: &mut dm_bundle::Bundle, seed: u64) {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xde75);
+    let mut double = |points: &ndarray::Array2<f32>, colors: &ndarray::Array2<f32>| {
+        let n = points.nrows();
+        let as_f64: Vec<[f64; 3]> = (0..n)
+            .map(|i| [0, 1, 2].map(|a| f64::from(points[[i, a]])))
+            .collect();
+        let index = dm_mpm::neighbors::PointIndex::new(&as_f64);
+        let mut new_points = points.clone().into_raw_vec_and_offset().0;
+        let mut new_colors = colors.clone().into_raw_vec_and_offset().0;
+        for i in 0..n {
+            let near = index.nearest(&as_f64[i], 7);
+            if near.len() < 2 {
+                continue;
+            }
+            let j = near[rng.random_range(1..near.len())].0;
+            for a in 0..3 {
+                new_points.push(0.5 * (points[[i, a]] + points[[j, a]]));
+            }
+            for a in 0..3 {
+                new_colors.push(0.5 * (colors[[i, a]] + colors[[j, a]]));
+            }
+        }
+        let rows = new_points.len() / 3;
+        (
+            ndarray::Array2::from_shape_vec((rows, 3), new_points).expect("rows of 3"),
+            ndarray::Array2::from_shape_vec((rows, 3), new_colors).expect("rows of 3"),
+        )
+    };
+    let p = &bundle.particles;
+    let (surface_points, surface_colors) = double(&p.surface_points, &p.surface_colors);
+    let (interior_points, interior_colors) = double(&p.interior_points, &p.interior_colors);
+    bundle.particles = dm_bundle::FirstFrameParticles {
+        surface_points,
+        surface_colors,
+        interior_points,
+        interior_colors,
+    };
+}
+
+/// Overwrites the bundle's hand track by the truth's scripted anchors at
+/// each frame's time, every anchor visible.
+pub fn replace_hands_by_truth(
+    bundle: &mut dm_bundle::Bundle,
+    truth: &TruthFile,
+) -> anyhow::Result<()> {
+    let hands = &mut bundle.tracks.hand_points;
+    let (frames, anchors) = (hands.shape()[0], hands.shape()[1]);
+    for t in 0..frames {
+        let exact: Vec<[f64; 3]> = truth
+            .hands
+            .iter()
+            .flat_map(|h| h.anchors_at(t as f64 / bundle.meta.fps))
+            .collect();
+        anyhow::ensure!(
+            exact.len() == anchors,
+            "the truth has {} anchors, the bundle's hand track {anchors}",
+            exact.len()
+        );
+        for (j, p) in exact.iter().enumerate() {
+            for a in 0..3 {
+                hands[[t, j, a]] = p[a] as f32;
+            }
+        }
+    }
+    bundle.tracks.hand_visibility.fill(true);
+    Ok(())
+}
+
+/// Overwrites the bundle's first-frame particles by the truth's own at
+/// their first-frame positions (the truth simulation is rerun): all of
+/// them, or a seeded random subset of `keep`, with `noise_mm` of Gaussian
+/// noise per coordinate.
+pub fn replace_particles_by_truth(
+    bundle: &mut dm_bundle::Bundle,
+    truth: &TruthFile,
+    keep: Option<usize>,
+    noise_mm: f64,
+) -> anyhow::Result<()> {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let mut progress = |stage: &str, done: usize, total: usize| {
+        if done == total {
+            eprintln!("{stage}: {total} done");
+        }
+    };
+    let simulated = dm_synth::simulate_truth(&truth.config, &mut progress)?;
+    let first = &simulated.frames[0];
+    let preset = truth.config.preset;
+    let ids = seeded_subset(first.len(), keep.unwrap_or(first.len()), truth.config.seed);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(truth.config.seed ^ 0x9a27);
+    let noise = rand_distr::Normal::new(0.0, 1e-3 * noise_mm)?;
+    let moved: Vec<[f32; 3]> = (0..first.len())
+        .map(|i| first[i].map(|c| c + noise.sample(&mut rng) as f32))
+        .collect();
+    let arrays = |surface: bool| {
+        let ids: Vec<usize> = ids
+            .iter()
+            .copied()
+            .filter(|&i| simulated.cloud.on_surface[i] == surface)
+            .collect();
+        let points = ndarray::Array2::from_shape_fn((ids.len(), 3), |(r, a)| moved[ids[r]][a]);
+        let colors = ndarray::Array2::from_shape_fn((ids.len(), 3), |(r, a)| {
+            preset.albedo(simulated.cloud.positions[ids[r]])[a]
+        });
+        (points, colors)
+    };
+    let (surface_points, surface_colors) = arrays(true);
+    let (interior_points, interior_colors) = arrays(false);
+    bundle.particles = dm_bundle::FirstFrameParticles {
+        surface_points,
+        surface_colors,
+        interior_points,
+        interior_colors,
+    };
+    Ok(())
+}
+
+/// A seeded uniform random subset of `keep` of the indices 0..n, sorted.
+pub fn seeded_subset(n: usize, keep: usize, seed: u64) -> Vec<usize> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5b5e);
+    let mut ids: Vec<usize> = (0..n).collect();
+    let keep = keep.min(n);
+    for i in 0..keep {
+        let j = rng.random_range(i..n);
+        ids.swap(i, j);
+    }
+    ids.truncate(keep);
+    ids.sort_unstable();
+    ids
+}

@@ -231,3 +231,23 @@ fn issue3_identifiability_is_printed_and_bad_noise_refused() {
         String::from_utf8_lossy(&refused.stderr)
     );
 }
+
+/// A bad `--hand-smoothing` stops dm-fit before any work, naming the flag,
+/// and leaves no model directory behind.
+#[test]
+fn issue3_bad_hand_smoothing_is_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = tiny_scene(dir.path(), Preset::Rope, 4);
+    let out = dir.path().join("refused");
+    let refused = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .arg("--hand-smoothing=-2")
+        .output()
+        .expect("dm-fit runs");
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("--hand-smoothing"), "{stderr}");
+    assert!(!out.join("model.json").exists());
+}

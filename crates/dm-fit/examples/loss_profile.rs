@@ -35,6 +35,11 @@ struct Args {
     /// nearest-particle losses.
     #[arg(long)]
     loss_keep: Option<usize>,
+    /// Profile once per subset seed (with --exact-particles
+    /// --keep-particles N): how much the optimum moves with which particles
+    /// the model is given. The truth is simulated once.
+    #[arg(long, value_delimiter = ',')]
+    subset_seeds: Vec<u64>,
     /// Factors on the true E.
     #[arg(long, value_delimiter = ',', default_value = "0.6,0.75,1,1.25")]
     factors: Vec<f64>,
@@ -44,9 +49,30 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (mut bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
-    args.scene.apply(&mut bundle, &truth)?;
-    let mut base = WorldModel::from_bundle(&bundle, &args.fit.model)?;
+    let (recorded, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let seeds: Vec<Option<u64>> = if args.subset_seeds.is_empty() {
+        vec![args.scene.subset_seed]
+    } else {
+        args.subset_seeds.iter().map(|&s| Some(s)).collect()
+    };
+    for seed in seeds {
+        let mut bundle = recorded.clone();
+        let scene = support::SceneOverride {
+            subset_seed: seed,
+            ..args.scene
+        };
+        scene.apply(&mut bundle, &truth)?;
+        if let Some(seed) = seed {
+            println!("\nsubset seed {seed}");
+        }
+        profile(&args, &bundle, &truth)?;
+    }
+    Ok(())
+}
+
+/// One table: the training loss terms along E.
+fn profile(args: &Args, bundle: &dm_bundle::Bundle, truth: &dm_synth::TruthFile) -> Result<()> {
+    let mut base = WorldModel::from_bundle(bundle, &args.fit.model)?;
     base.actuator = dm_synth::truth::TRUTH_GRIP;
     args.grip.apply(&mut base.actuator);
     let frames = bundle.meta.split.train[1];
@@ -62,6 +88,10 @@ fn main() -> Result<()> {
         &ObservedFrame::from_tracks(&bundle.tracks, 0)?.points,
     )?;
     let length = LengthPreservation::new(&first, PairSelection::default())?;
+    let embedded = EmbeddedTracks::new(
+        &first,
+        &ObservedFrame::from_tracks(&bundle.tracks, 0)?.points,
+    );
     let terms = LossTerms {
         track: &track,
         length: &length,
@@ -78,18 +108,22 @@ fn main() -> Result<()> {
         weights.shape,
         weights.length
     );
-    println!("| E factor | track | shape | length | L_dyn | track, offsets free |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| E factor | track | shape | length | L_dyn | track, offsets free | track, embedded |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     for &factor in &args.factors {
-        let model = support::with_material(&base, &truth, factor, 0.0);
-        let rollout = model.rollout(&bundle, frames, &mut |_| {})?;
+        let model = support::with_material(&base, truth, factor, 0.0);
+        let rollout = model.rollout(bundle, frames, &mut |_| {})?;
         let mut sums = [0.0; 4];
+        let mut embedded_sum = 0.0;
         // Per track: Σ r, Σ |r|², count of valid frames (r = predicted − observed).
         let mut residuals = vec![([0.0f64; 3], 0.0f64, 0usize); track.point_count()];
         for (t, frame) in rollout.iter().enumerate().skip(1) {
             let predicted: Vec<[f64; 3]> =
                 scored.iter().map(|&i| frame[i].map(f64::from)).collect();
             let observed = ObservedFrame::from_tracks(&bundle.tracks, t)?;
+            embedded_sum += embedded.loss(&predicted, &observed) / (frames - 1) as f64;
             for (k, &p) in track.particles().iter().enumerate() {
                 if observed.track_valid[k] {
                     let r: [f64; 3] =
@@ -120,13 +154,75 @@ fn main() -> Result<()> {
                     (sum + s2 - mean_part, count + n)
                 });
         println!(
-            "| {factor} | {:.4e} | {:.4e} | {:.4e} | {:.4e} | {:.4e} |",
+            "| {factor} | {:.4e} | {:.4e} | {:.4e} | {:.4e} | {:.4e} | {:.4e} |",
             sums[0],
             sums[1],
             sums[2],
             sums[3],
-            centred / valid.max(1) as f64
+            centred / valid.max(1) as f64,
+            embedded_sum
         );
     }
     Ok(())
+}
+
+/// Tracked points embedded in the particle cloud at frame 0: each follows
+/// the inverse-distance-weighted mean of its 8 nearest particles plus its
+/// frame-0 offset from that mean (an alternative to the nearest particle).
+struct EmbeddedTracks {
+    neighbours: Vec<Vec<(usize, f64)>>,
+    offsets: Vec<[f64; 3]>,
+}
+
+impl EmbeddedTracks {
+    fn new(particles: &[[f64; 3]], observed: &[[f64; 3]]) -> Self {
+        let index = dm_mpm::neighbors::PointIndex::new(particles);
+        let neighbours: Vec<Vec<(usize, f64)>> = observed
+            .iter()
+            .map(|o| {
+                let near = index.nearest(o, 8);
+                let weights: Vec<f64> = near.iter().map(|&(_, d)| 1.0 / (d + 1e-4)).collect();
+                let total: f64 = weights.iter().sum();
+                near.iter()
+                    .zip(&weights)
+                    .map(|(&(i, _), w)| (i, w / total))
+                    .collect()
+            })
+            .collect();
+        let mut tracks = Self {
+            neighbours,
+            offsets: vec![[0.0; 3]; observed.len()],
+        };
+        tracks.offsets = observed
+            .iter()
+            .enumerate()
+            .map(|(k, o)| {
+                let p = tracks.position(particles, k);
+                std::array::from_fn(|a| o[a] - p[a])
+            })
+            .collect();
+        tracks
+    }
+
+    fn position(&self, particles: &[[f64; 3]], k: usize) -> [f64; 3] {
+        let mut p = self.offsets.get(k).copied().unwrap_or([0.0; 3]);
+        for &(i, w) in &self.neighbours[k] {
+            for a in 0..3 {
+                p[a] += w * particles[i][a];
+            }
+        }
+        p
+    }
+
+    /// Mean squared distance over the frame's valid tracks.
+    fn loss(&self, predicted: &[[f64; 3]], observed: &ObservedFrame) -> f64 {
+        let (sum, count) = (0..self.neighbours.len())
+            .filter(|&k| observed.track_valid[k])
+            .fold((0.0, 0usize), |(sum, count), k| {
+                let p = self.position(predicted, k);
+                let d: f64 = (0..3).map(|a| (p[a] - observed.points[k][a]).powi(2)).sum();
+                (sum + d, count + 1)
+            });
+        sum / count.max(1) as f64
+    }
 }

@@ -97,6 +97,9 @@ pub struct SceneOverride {
     /// another spacing) instead of the scene's own.
     #[arg(long, requires = "exact_particles")]
     pub lattice_particles: Option<usize>,
+    /// Seed of the --keep-particles subset (default: the scene's seed).
+    #[arg(long)]
+    pub subset_seed: Option<u64>,
     /// Double the bundle's first-frame particles: each adds the midpoint
     /// to a seeded random one of its 6 nearest neighbours of the same kind
     /// (surface or interior).
@@ -117,7 +120,8 @@ impl SceneOverride {
             replace_particles_by_truth(
                 bundle,
                 &source,
-                self.keep_particles,
+                self.keep_particles
+                    .map(|n| (n, self.subset_seed.unwrap_or(truth.config.seed))),
                 self.particle_noise_mm,
             )?;
         }
@@ -199,27 +203,49 @@ pub fn replace_hands_by_truth(
     Ok(())
 }
 
-/// Overwrites the bundle's first-frame particles by the truth's own at
-/// their first-frame positions (the truth simulation is rerun): all of
-/// them, or a seeded random subset of `keep`, with `noise_mm` of Gaussian
-/// noise per coordinate.
-pub fn replace_particles_by_truth(
-    bundle: &mut dm_bundle::Bundle,
-    truth: &TruthFile,
-    keep: Option<usize>,
-    noise_mm: f64,
-) -> anyhow::Result<()> {
-    use rand::SeedableRng;
-    use rand_distr::Distribution;
+/// The truth's first frame: positions, surface flags, rest positions.
+type TruthFirstFrame = (Vec<[f32; 3]>, Vec<bool>, Vec<[f64; 3]>);
+
+/// [`TruthFirstFrame`], simulated once per process: the examples compare
+/// several particle subsets of one scene.
+fn truth_first_frame(truth: &TruthFile) -> anyhow::Result<&'static TruthFirstFrame> {
+    static FIRST: std::sync::OnceLock<TruthFirstFrame> = std::sync::OnceLock::new();
+    if let Some(first) = FIRST.get() {
+        return Ok(first);
+    }
     let mut progress = |stage: &str, done: usize, total: usize| {
         if done == total {
             eprintln!("{stage}: {total} done");
         }
     };
     let simulated = dm_synth::simulate_truth(&truth.config, &mut progress)?;
-    let first = &simulated.frames[0];
+    Ok(FIRST.get_or_init(|| {
+        (
+            simulated.frames[0].clone(),
+            simulated.cloud.on_surface.clone(),
+            simulated.cloud.positions.clone(),
+        )
+    }))
+}
+
+/// Overwrites the bundle's first-frame particles by the truth's own at
+/// their first-frame positions (the truth simulation is rerun): all of
+/// them, or a random subset of `keep.0` seeded by `keep.1`, with
+/// `noise_mm` of Gaussian noise per coordinate.
+pub fn replace_particles_by_truth(
+    bundle: &mut dm_bundle::Bundle,
+    truth: &TruthFile,
+    keep: Option<(usize, u64)>,
+    noise_mm: f64,
+) -> anyhow::Result<()> {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let (first, on_surface, rest) = truth_first_frame(truth)?;
     let preset = truth.config.preset;
-    let ids = seeded_subset(first.len(), keep.unwrap_or(first.len()), truth.config.seed);
+    let ids = match keep {
+        Some((n, seed)) => seeded_subset(first.len(), n, seed),
+        None => (0..first.len()).collect(),
+    };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(truth.config.seed ^ 0x9a27);
     let noise = rand_distr::Normal::new(0.0, 1e-3 * noise_mm)?;
     let moved: Vec<[f32; 3]> = (0..first.len())
@@ -229,12 +255,11 @@ pub fn replace_particles_by_truth(
         let ids: Vec<usize> = ids
             .iter()
             .copied()
-            .filter(|&i| simulated.cloud.on_surface[i] == surface)
+            .filter(|&i| on_surface[i] == surface)
             .collect();
         let points = ndarray::Array2::from_shape_fn((ids.len(), 3), |(r, a)| moved[ids[r]][a]);
-        let colors = ndarray::Array2::from_shape_fn((ids.len(), 3), |(r, a)| {
-            preset.albedo(simulated.cloud.positions[ids[r]])[a]
-        });
+        let colors =
+            ndarray::Array2::from_shape_fn((ids.len(), 3), |(r, a)| preset.albedo(rest[ids[r]])[a]);
         (points, colors)
     };
     let (surface_points, surface_colors) = arrays(true);

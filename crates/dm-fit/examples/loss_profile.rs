@@ -98,6 +98,16 @@ fn profile(args: &Args, bundle: &dm_bundle::Bundle, truth: &dm_synth::TruthFile)
         surface_count: scored_surface,
     };
     let weights = LossWeights::default();
+    // How many particles the hands hold once they grasp (frame 0 → 1).
+    let mut world = base.world()?;
+    let (from, to, grasp) = base.hand_step(bundle, 0);
+    world.step_frame(&from, &to, &grasp)?;
+    eprintln!(
+        "{} particles, {} held by the hands ({} couplings)",
+        base.particles.len(),
+        world.actuators().coupled_particle_count(),
+        world.actuators().coupling_count()
+    );
     println!(
         "\n{} — k_p {:.3e}, k_d {:.3e}, grasp radius {} m; weights track {}, shape {}, length {}\n",
         args.bundle.display(),

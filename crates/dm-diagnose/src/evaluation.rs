@@ -31,6 +31,8 @@ pub fn quick_fit_options() -> FitOptions {
         window: 20,
         gain_evals: 4,
         seed: 0,
+        // The diagnosis keeps the default grip width.
+        search_grasp_radius: false,
         // Physics only: the diagnosis compares physical models.
         rgb_iters: 0,
         rgb_weight: dm_fit::rgb_stage::DEFAULT_RGB_WEIGHT,

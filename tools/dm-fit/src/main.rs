@@ -59,11 +59,12 @@ fn main() -> Result<()> {
         }
     };
     println!(
-        "dm-fit: E {:.3e} Pa, nu {:.3}, kp {:.3e}, kd {:.3e}; train loss {} -> {:.3e} m² in {:.1} s",
+        "dm-fit: E {:.3e} Pa, nu {:.3}, kp {:.3e}, kd {:.3e}, grasp radius {:.1} mm; train loss {} -> {:.3e} m² in {:.1} s",
         report.material["E_median_pa"].as_f64().unwrap_or(f64::NAN),
         report.material["nu_median"].as_f64().unwrap_or(f64::NAN),
         report.dca["kp"].as_f64().unwrap_or(f64::NAN),
         report.dca["kd"].as_f64().unwrap_or(f64::NAN),
+        1e3 * report.dca["grasp_radius_m"].as_f64().unwrap_or(f64::NAN),
         report.loss["initial"]
             .as_f64()
             .map_or("-".into(), |v| format!("{v:.3e}")),

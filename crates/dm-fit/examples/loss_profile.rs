@@ -83,15 +83,10 @@ fn profile(args: &Args, bundle: &dm_bundle::Bundle, truth: &dm_synth::TruthFile)
     };
     let scored_surface = scored.iter().filter(|&&i| i < base.surface_count).count();
     let first: Vec<[f64; 3]> = scored.iter().map(|&i| base.particles[i]).collect();
-    let track = TrackMatch::new(
-        &first,
-        &ObservedFrame::from_tracks(&bundle.tracks, 0)?.points,
-    )?;
+    let observed_first = ObservedFrame::from_tracks(&bundle.tracks, 0)?.points;
+    let track = TrackMatch::new(&first, &observed_first)?;
     let length = LengthPreservation::new(&first, PairSelection::default())?;
-    let embedded = EmbeddedTracks::new(
-        &first,
-        &ObservedFrame::from_tracks(&bundle.tracks, 0)?.points,
-    );
+    let embedded = EmbeddedTracks::new(&first, &observed_first);
     let terms = LossTerms {
         track: &track,
         length: &length,
@@ -199,29 +194,23 @@ impl EmbeddedTracks {
                     .collect()
             })
             .collect();
-        let mut tracks = Self {
-            neighbours,
-            offsets: vec![[0.0; 3]; observed.len()],
-        };
-        tracks.offsets = observed
+        let offsets = observed
             .iter()
-            .enumerate()
-            .map(|(k, o)| {
-                let p = tracks.position(particles, k);
-                std::array::from_fn(|a| o[a] - p[a])
+            .zip(&neighbours)
+            .map(|(o, near)| {
+                let mean = weighted_mean(particles, near);
+                std::array::from_fn(|a| o[a] - mean[a])
             })
             .collect();
-        tracks
+        Self {
+            neighbours,
+            offsets,
+        }
     }
 
     fn position(&self, particles: &[[f64; 3]], k: usize) -> [f64; 3] {
-        let mut p = self.offsets.get(k).copied().unwrap_or([0.0; 3]);
-        for &(i, w) in &self.neighbours[k] {
-            for a in 0..3 {
-                p[a] += w * particles[i][a];
-            }
-        }
-        p
+        let mean = weighted_mean(particles, &self.neighbours[k]);
+        std::array::from_fn(|a| mean[a] + self.offsets[k][a])
     }
 
     /// Mean squared distance over the frame's valid tracks.
@@ -235,4 +224,15 @@ impl EmbeddedTracks {
             });
         sum / count.max(1) as f64
     }
+}
+
+/// Σ w_i x_i over `(i, w_i)`.
+fn weighted_mean(particles: &[[f64; 3]], weights: &[(usize, f64)]) -> [f64; 3] {
+    let mut sum = [0.0; 3];
+    for &(i, w) in weights {
+        for a in 0..3 {
+            sum[a] += w * particles[i][a];
+        }
+    }
+    sum
 }

@@ -274,6 +274,8 @@ pub fn replace_particles_by_truth(
 }
 
 /// A seeded uniform random subset of `keep` of the indices 0..n, sorted.
+/// A partial Fisher–Yates of its own rather than `rand::seq::index::sample`
+/// (another draw): the subset seeds in docs/RESULTS.md name these subsets.
 pub fn seeded_subset(n: usize, keep: usize, seed: u64) -> Vec<usize> {
     use rand::{RngExt, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5b5e);

@@ -70,6 +70,7 @@ pub struct Consts<T> {
     pub inv_dx: T,
     pub origin: Vec3<T>,
     pub gravity: Vec3<T>,
+    /// Grid velocity factor of one substep of length `dt`.
     pub grid_damping: T,
     /// exp(-particle_damping * dt).
     pub particle_damping_factor: T,
@@ -104,7 +105,11 @@ impl<T: Real> Consts<T> {
             inv_dx: T::lit(1.0 / dx),
             origin: vec3(origin),
             gravity: vec3(config.gravity),
-            grid_damping: T::lit(config.grid_damping),
+            grid_damping: T::lit(
+                config
+                    .grid_damping
+                    .powf(config.dt / crate::config::GRID_DAMPING_REFERENCE_DT),
+            ),
             particle_damping_factor: T::lit((-config.particle_damping * config.dt).exp()),
             wall_cells: config.wall_cells,
             clip_lo: vec3(origin.map(|o| o + clo * size)),

@@ -734,6 +734,11 @@ fn grid_update_applies_walls_floor_and_friction() {
     c.grid_damping = 0.5;
     let v = updated_velocity(&c, [8, 8, 8], [0.0, 0.0, 1.0]);
     assert!((v[2] - (1.0 - 10.0 * c.dt) * 0.5).abs() < F64_RTOL);
+    // The factor is per GRID_DAMPING_REFERENCE_DT: half the substep, its root.
+    assert_eq!(c.dt, dm_mpm::GRID_DAMPING_REFERENCE_DT);
+    c.dt /= 2.0;
+    let v = updated_velocity(&c, [8, 8, 8], [0.0, 0.0, 1.0]);
+    assert!((v[2] - (1.0 - 10.0 * c.dt) * 0.5f64.sqrt()).abs() < F64_RTOL);
     // Floor at z = 0 (node k = 4 with origin z = -0.25, dx = 1/16).
     let mut c = boundary_config();
     c.floor = Some(FloorConfig {

@@ -21,6 +21,9 @@ const F64_MOMENTUM_RTOL: f64 = 1e-12;
 const F32_MOMENTUM_RTOL: f64 = 1e-6;
 /// Momentum the default empty-node cut drops over the run (measured 4e-7).
 const EMPTY_NODE_CUT_MOMENTUM_RTOL: f64 = 1e-5;
+/// f64 rigid translation: P2G/G2P carry a uniform velocity exactly, so one
+/// frame's velocity ratio is the damping product up to round-off.
+const F64_TRANSLATION_TOL: f64 = 1e-12;
 /// f64 free fall vs the closed-form symplectic Euler trajectory.
 const FREE_FALL_TOL_M: f64 = 1e-10;
 /// A resting cube keeps far less than this share of the energy it gained
@@ -727,4 +730,52 @@ fn a_material_too_stiff_for_the_grid_is_refused_not_run_forever() {
         matches!(&result, Err(SimError::InvalidConfig { field, .. }) if field == "dt"),
         "{result:?}"
     );
+}
+
+/// Grid damping keeps its rate per second when the CFL bound refines the
+/// substep (issue 3's nineteenth-session note: 0.999 per refined substep
+/// damped a stiff model 3.4× harder, so changing E changed the damping).
+/// A rigid translation carries no stress, so after one frame its velocity
+/// is v₀ times the frame's damping alone, whatever the material.
+#[test]
+fn issue3_grid_damping_per_second_does_not_depend_on_stiffness() {
+    let mut config = free_space_config();
+    config.gravity = [0.0; 3];
+    config.grid_damping = 0.999;
+    let nominal_substeps = config.substeps_per_frame;
+    let frame_damping = |youngs: f64| -> (usize, f64) {
+        let h = dx() / 2.0;
+        let positions = lattice([0.4, 0.45, 0.45], [0.6, 0.55, 0.55], h);
+        let mut world: World<f64> = block_world(
+            config.clone(),
+            &positions,
+            youngs,
+            0.3,
+            [1.0, 0.0, 0.0],
+            ActuatorConfig::default(),
+        );
+        world
+            .set_velocities(&vec![[0.2, 0.0, 0.0]; positions.len()])
+            .expect("sizes match");
+        world.step_frame_free().expect("stable");
+        let vx = mean(&world.velocities())[0];
+        (world.config().substeps_per_frame, vx / 0.2)
+    };
+    let expected = 0.999f64.powi(nominal_substeps as i32);
+    let (soft_substeps, soft) = frame_damping(5e3);
+    let (stiff_substeps, stiff) = frame_damping(5e7);
+    assert_eq!(
+        soft_substeps, nominal_substeps,
+        "the soft block is not refined"
+    );
+    assert!(
+        stiff_substeps > 2 * nominal_substeps,
+        "the stiff block must be refined for this test ({stiff_substeps} substeps)"
+    );
+    for (name, got) in [("soft", soft), ("stiff", stiff)] {
+        assert!(
+            (got - expected).abs() < F64_TRANSLATION_TOL,
+            "{name}: one frame kept {got} of the velocity, expected {expected}"
+        );
+    }
 }

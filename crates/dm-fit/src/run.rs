@@ -402,7 +402,6 @@ fn fit_stages(
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
     options.validate_track_noise()?;
-    std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut state = if resume && checkpoint_path.is_file() {
         let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
@@ -437,6 +436,9 @@ fn fit_stages(
             kept_residual: None,
         }
     };
+    // Only once the options and the bundle have given a model: a refused run
+    // leaves no empty output directory behind.
+    std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     let mut steps = 0;
     loop {
         if stop_after.is_some_and(|n| steps >= n) && state.stage != Stage::Done {

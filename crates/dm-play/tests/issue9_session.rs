@@ -131,7 +131,7 @@ fn issue9_a_strong_pull_tears_the_object() {
     // object's body stays whole: its main piece keeps all but the grip
     // patches (>= 85 %; the patches hold 11 %). (Measured since grid damping
     // became a rate: [708, 46, 42] at E x0.1, x0.3 and x1 and [709, 46, 42]
-    // at x3, for pulls of 0.3-0.5 m/s and particle damping 0-5 /s. With the
+    // at x3, for pulls of 0.3-0.5 m/s and particle damping 0 or 5 /s. With the
     // damping per CFL substep, which damped a soft object less, E x0.3 also
     // lost a 17-particle chunk of its body: [674, 63, 45] against
     // [737, 45] at E x3.)

@@ -69,11 +69,12 @@ fn issue7_rgb_term_gradient_matches_finite_differences_along_a_translation() {
             .collect();
         term.frame(1, &moved).expect("frame")
     };
-    // (numeric, analytic) directional derivative along each axis.
+    // (numeric, analytic) directional derivative along each axis, from one
+    // analytic gradient at SHIFT.
+    let (_, grad) = value_and_grad(SHIFT);
     let derivatives: Vec<(f64, f64)> = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
         .iter()
         .map(|direction| {
-            let (_, grad) = value_and_grad(SHIFT);
             let analytic: f64 = grad
                 .iter()
                 .map(|g| (0..3).map(|c| g[c] * direction[c]).sum::<f64>())

@@ -326,9 +326,28 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         return Err(format!("the E slider shows {shown}"));
     }
 
-    // Young's-modulus colouring on; hand 2 grabs the far side
-    // (Shift+click), then both hands pull apart at full speed: the soft
-    // object tears (asserted in issue9_session.rs; here it is pictured).
+    // Reset (the material is kept) so that the two grabs below aim at the
+    // object at rest: held aloft by hand 1 it sways, and a click aimed at
+    // its rest position may miss it (issue 9's CI failure at 82050a6).
+    let before_reset = get_json(addr, "/api/state")["frame"].as_u64().unwrap_or(0);
+    client
+        .execute(
+            "document.getElementById('reset').click(); return true;",
+            vec![],
+        )
+        .await
+        .map_err(|e| e.to_string())?;
+    wait_until("the reset", || async move {
+        let s = get_json(addr, "/api/state");
+        s["frame"].as_u64().is_some_and(|f| f < before_reset)
+            && s["hands"][0]["attached"] == json!(false)
+    })
+    .await;
+
+    // Young's-modulus colouring on; hand 1 grabs the near side, hand 2 the
+    // far side (Shift+click), then both hands pull apart at full speed:
+    // the soft object tears (asserted in issue9_session.rs; here it is
+    // pictured).
     client
         .execute(
             "document.getElementById('show-youngs').click(); return true;",
@@ -343,11 +362,23 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     click_main(client, u1, v1, false).await;
     let (u2, v2) = project(&view.cameras[0], far);
     click_main(client, u2, v2, true).await;
-    wait_until("both hands to hold the object", || async move {
+    let both_holding = || {
         let s = get_json(addr, "/api/state");
         s["hands"][0]["attached"] == json!(true) && s["hands"][1]["attached"] == json!(true)
-    })
-    .await;
+    };
+    let start = Instant::now();
+    while !both_holding() {
+        if start.elapsed() > PAGE_TIMEOUT {
+            // Say why: a missed click shows in the page's message, a
+            // divergence in the state's last_error.
+            return Err(format!(
+                "timed out waiting for both hands to hold the object: page says {:?}, state {}",
+                element_text(client, "message").await.unwrap_or_default(),
+                get_json(addr, "/api/state")
+            ));
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
     set_slider(client, "speed", 1.0).await;
     let pull = KeyActions::new("keyboard".into())
         .then(KeyAction::Down { value: 'a' })

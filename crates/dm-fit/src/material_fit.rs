@@ -74,11 +74,6 @@ pub struct MaterialFitConfig {
     /// ([`crate::learnt_effects`]).
     #[serde(default = "learn_effects_by_default")]
     pub learn_effects: bool,
-    /// Frames at the end of the fitted ones that are rolled out and scored
-    /// (`LossGradients::frame_losses`) but enter neither the loss nor its
-    /// gradient: frames the step has not trained on (0: all train).
-    #[serde(default)]
-    pub unseen_frames: usize,
 }
 
 fn learn_effects_by_default() -> bool {
@@ -118,7 +113,6 @@ impl Default for MaterialFitConfig {
             residual_learning_rate: 5e-3,
             freeze_material: false,
             learn_effects: true,
-            unseen_frames: 0,
         }
     }
 }
@@ -220,12 +214,6 @@ pub struct LossGradients {
 /// averages: the same share as the held-out split that follows them.
 pub const LATE_FRAMES_SHARE: f64 = 0.3;
 
-/// How many of `predicted` frames [`late_frames_loss`] averages: the last
-/// [`LATE_FRAMES_SHARE`] of them, at least one (none of none).
-pub fn late_frames_count(predicted: usize) -> usize {
-    ((predicted as f64 * LATE_FRAMES_SHARE).round() as usize).clamp(1.min(predicted), predicted)
-}
-
 /// Mean of the last [`LATE_FRAMES_SHARE`] of `frame_losses` (at least one
 /// frame): how well an open-loop rollout holds up where it has drifted
 /// longest, the nearest thing inside the training frames to the held-out
@@ -234,7 +222,8 @@ pub fn late_frames_loss(frame_losses: &[f64]) -> f64 {
     if frame_losses.is_empty() {
         return f64::INFINITY;
     }
-    let count = late_frames_count(frame_losses.len());
+    let count = ((frame_losses.len() as f64 * LATE_FRAMES_SHARE).round() as usize)
+        .clamp(1, frame_losses.len());
     let late = &frame_losses[frame_losses.len() - count..];
     late.iter().sum::<f64>() / count as f64
 }
@@ -247,38 +236,22 @@ pub fn loss_and_gradient(
     bundle: &Bundle,
     frames: usize,
     window: usize,
-    extra: Option<&mut dyn FrameTerm>,
-) -> Result<(f64, LossGradients), FitError> {
-    loss_and_gradient_with_unseen(model, bundle, frames, 0, window, extra)
-}
-
-/// [`loss_and_gradient`] whose last `unseen` predicted frames are rolled
-/// out and scored (`frame_losses`) but left out of the loss, the
-/// regulariser and the gradient: the loss is that of the first
-/// `frames − unseen` frames, exactly.
-pub fn loss_and_gradient_with_unseen(
-    model: &WorldModel,
-    bundle: &Bundle,
-    frames: usize,
-    unseen: usize,
-    window: usize,
     mut extra: Option<&mut dyn FrameTerm>,
 ) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
-    if frames < 2 + unseen {
+    if frames < 2 {
         return Err(FitError::InvalidOption {
             option: "frames".into(),
-            problem: format!("need at least 2 trained frames besides {unseen} unseen ones"),
+            problem: "need at least 2 frames".into(),
         });
     }
     let steps = frames - 1;
-    let trained = steps - unseen;
     let mut world = model.world()?;
     let network = model.residual_network()?;
     let n = world.particle_count();
     let fixed = FixedTerms::new(model, bundle)?;
     // Σ_p |Δv_p|² / n per frame, averaged over frames like L_dyn.
-    let regulariser = RESIDUAL_REGULARISER / (n * trained) as f64;
+    let regulariser = RESIDUAL_REGULARISER / (n * steps) as f64;
 
     // Forward: checkpoints at frame starts, loss gradients at frame ends.
     let mut checkpoints = Vec::with_capacity(steps);
@@ -294,25 +267,19 @@ pub fn loss_and_gradient_with_unseen(
         }
         let (from, to, grasp) = model.hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
-        let seen = t < trained;
         if let Some(network) = &network {
             let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
-            if seen {
-                loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
-            }
+            loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
         let positions = world.positions();
         let value = fixed.frame(bundle, t + 1, &positions)?;
+        loss += value.value / steps as f64;
         frame_losses.push(value.value);
-        if !seen {
-            continue;
-        }
-        loss += value.value / trained as f64;
         let mut grad: Vec<[f64; 3]> = value
             .grad
             .iter()
-            .map(|g| g.map(|c| c / trained as f64))
+            .map(|g| g.map(|c| c / steps as f64))
             .collect();
         if let Some(term) = extra.as_deref_mut() {
             let (value, term_grad) = term.frame(t + 1, &positions)?;
@@ -334,7 +301,7 @@ pub fn loss_and_gradient_with_unseen(
     let mut grad_residual = network.as_ref().map(|net| vec![0.0; net.parameter_count()]);
     let mut grad_effects = EffectGrads::default();
     let mut grad_mass = vec![0.0f64; n];
-    for t in (0..trained).rev() {
+    for t in (0..steps).rev() {
         for (c, g) in carried.x.iter_mut().zip(&frame_grads[t]) {
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
         }
@@ -459,11 +426,10 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let (loss, grads) = loss_and_gradient_with_unseen(
+    let (loss, grads) = loss_and_gradient(
         model,
         bundle,
         fit_frames(bundle, config),
-        config.unseen_frames,
         config.window,
         extra,
     )?;

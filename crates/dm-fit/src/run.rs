@@ -7,8 +7,8 @@ use crate::identifiability::{
     DEFAULT_TRACK_NOISE_MM, DEFAULT_TRACK_OFFSET_MM, TrackNoise, identifiability_at,
 };
 use crate::material_fit::{
-    FitError, IterationReport, MaterialFitConfig, fit_frames, late_frames_count, late_frames_loss,
-    material_step, train_frame_losses, train_loss,
+    FitError, IterationReport, MaterialFitConfig, fit_frames, late_frames_loss, material_step,
+    train_frame_losses, train_loss,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
@@ -184,25 +184,10 @@ pub enum ResidualKeep {
     /// frames 12–16 rose from 9 to 13 mm between 12 and 36 steps, held-out
     /// 11.6 → 17.2 mm; docs/RESULTS.md, issue 4).
     LateFrames,
-    /// As `late-frames`, but the stage's steps train on the first 70 % of
-    /// the training frames only, so the late 30 % that choose the network
-    /// are frames its stage has not trained on (the joint steps before the
-    /// stage saw them). The late-frames score cannot see a network that
-    /// fails on motion it has not seen: on a stretched rope it kept one
-    /// that was better on every training frame and 31 % worse held out
-    /// (docs/RESULTS.md, issue 4, twenty-first session).
-    UnseenFrames,
-}
-
-impl ResidualKeep {
-    /// Whether the stage keeps its best network by the late-frames loss.
-    fn scores_late_frames(self) -> bool {
-        matches!(self, ResidualKeep::LateFrames | ResidualKeep::UnseenFrames)
-    }
 }
 
 /// The network of the residual-only stage with the lowest late-frames
-/// loss so far ([`ResidualKeep::LateFrames`], [`ResidualKeep::UnseenFrames`]).
+/// loss so far ([`ResidualKeep::LateFrames`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KeptResidual {
     /// Steps of the stage taken before these weights (0: its start).
@@ -294,7 +279,6 @@ fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
         learn_effects: !options.freeze_effects,
-        unseen_frames: 0,
     }
 }
 
@@ -474,17 +458,13 @@ fn fit_stages(
                     _ => 0,
                 };
                 if state.iteration < total {
-                    let residual_stage = state.stage == Stage::Residual;
-                    let mut config = MaterialFitConfig {
-                        freeze_material: residual_stage,
+                    let config = MaterialFitConfig {
+                        freeze_material: state.stage == Stage::Residual,
                         ..material_config(options, total)
                     };
-                    if residual_stage && options.residual_keep == ResidualKeep::UnseenFrames {
-                        let predicted = fit_frames(bundle, &config).saturating_sub(1);
-                        config.unseen_frames = late_frames_count(predicted);
-                    }
                     let index = state.history.len();
-                    let keeping = residual_stage && options.residual_keep.scores_late_frames();
+                    let keeping = state.stage == Stage::Residual
+                        && options.residual_keep == ResidualKeep::LateFrames;
                     let weights_before = keeping
                         .then(|| state.model.residual.as_ref().map(|r| r.parameters.clone()))
                         .flatten();
@@ -712,7 +692,7 @@ fn restore_kept_residual(
     bundle: &Bundle,
     options: &FitOptions,
 ) -> Result<Option<String>, FitError> {
-    if !options.residual_keep.scores_late_frames() {
+    if options.residual_keep != ResidualKeep::LateFrames {
         return Ok(None);
     }
     let frames = fit_frames(bundle, &material_config(options, 0));

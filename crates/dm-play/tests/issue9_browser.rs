@@ -135,6 +135,18 @@ async fn set_slider(client: &Client, id: &str, value: f64) {
         .expect("slider set");
 }
 
+/// Clicks the page element with id `id` (a button or a checkbox).
+async fn click_element(client: &Client, id: &str) -> Result<(), String> {
+    client
+        .execute(
+            "document.getElementById(arguments[0]).click(); return true;",
+            vec![json!(id)],
+        )
+        .await
+        .map(|_| ())
+        .map_err(|e| format!("clicking #{id}: {e}"))
+}
+
 /// Clicks the main view at pixel (x, y), optionally with Shift (hand 2).
 async fn click_main(client: &Client, x: f64, y: f64, shift: bool) {
     client
@@ -330,13 +342,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     // object at rest: held aloft by hand 1 it sways, and a click aimed at
     // its rest position may miss it (issue 9's CI failure at 82050a6).
     let before_reset = get_json(addr, "/api/state")["frame"].as_u64().unwrap_or(0);
-    client
-        .execute(
-            "document.getElementById('reset').click(); return true;",
-            vec![],
-        )
-        .await
-        .map_err(|e| e.to_string())?;
+    click_element(client, "reset").await?;
     wait_until("the reset", || async move {
         let s = get_json(addr, "/api/state");
         s["frame"].as_u64().is_some_and(|f| f < before_reset)
@@ -348,13 +354,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     // far side (Shift+click), then both hands pull apart at full speed:
     // the soft object tears (asserted in issue9_session.rs; here it is
     // pictured).
-    client
-        .execute(
-            "document.getElementById('show-youngs').click(); return true;",
-            vec![],
-        )
-        .await
-        .map_err(|e| e.to_string())?;
+    click_element(client, "show-youngs").await?;
     let right = view.main_right();
     let far = [0, 1, 2].map(|a| view.centre[a] + 0.25 * view.extent * right[a]);
     let near = [0, 1, 2].map(|a| view.centre[a] - 0.25 * view.extent * right[a]);
@@ -396,13 +396,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     eprintln!("pieces after the E x0.3 pull: {pieces}");
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
     save_screenshot(&png, "issue9_pulled_youngs.png");
-    client
-        .execute(
-            "document.getElementById('show-youngs').click(); return true;",
-            vec![],
-        )
-        .await
-        .map_err(|e| e.to_string())?;
+    click_element(client, "show-youngs").await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
     save_screenshot(&png, "issue9_pulled.png");

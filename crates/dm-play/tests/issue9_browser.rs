@@ -97,7 +97,9 @@ fn screenshot_dir() -> PathBuf {
     dir
 }
 
-async fn wait_until<F, Fut>(what: &str, mut ready: F)
+/// Polls `ready` until it holds; an error names the step after
+/// [`PAGE_TIMEOUT`].
+async fn wait_until<F, Fut>(what: &str, mut ready: F) -> Result<(), String>
 where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = bool>,
@@ -106,12 +108,12 @@ where
     eprintln!("waiting for {what}");
     let start = Instant::now();
     while !ready().await {
-        assert!(
-            start.elapsed() < PAGE_TIMEOUT,
-            "timed out waiting for {what}"
-        );
+        if start.elapsed() >= PAGE_TIMEOUT {
+            return Err(format!("timed out waiting for {what}"));
+        }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
+    Ok(())
 }
 
 async fn hold_key(client: &Client, key: char, millis: u64) {
@@ -241,7 +243,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
             .and_then(|t| t.parse::<u64>().ok())
             .is_some_and(|frame| frame > 3)
     })
-    .await;
+    .await?;
     let message = element_text(client, "message").await?;
     if message.contains("could not start") {
         return Err(format!("the page failed: {message}"));
@@ -255,7 +257,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
             .and_then(|t| t.parse::<f64>().ok())
             .is_some_and(|f| f > 0.0)
     })
-    .await;
+    .await?;
 
     // Click the object's centre: hand 1 grabs.
     let start = get_json(addr, "/api/state");
@@ -266,7 +268,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         s["hands"][0]["attached"] == json!(true)
             && s["grasped_particles"][0].as_u64().unwrap_or(0) > 0
     })
-    .await;
+    .await?;
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
     save_screenshot(&png, "issue9_grabbed.png");
 
@@ -318,7 +320,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     wait_until("the fps counter to update", || async move {
         updates().await.is_some_and(|n| n >= first + 2)
     })
-    .await;
+    .await?;
     let fps: f64 = fps_text().await.and_then(|t| t.parse().ok()).unwrap_or(0.0);
     eprintln!("page fps {fps}");
     if fps.is_nan() || fps <= 0.0 {
@@ -332,7 +334,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         // The slider moves log10(E scale) in steps of 0.01 (2.3 %).
         (s["material"]["e_scale"].as_f64().unwrap_or(0.0) / 0.3 - 1.0).abs() < 0.025
     })
-    .await;
+    .await?;
     let shown = element_text(client, "e-scale-out").await?;
     if shown != "×0.30" {
         return Err(format!("the E slider shows {shown}"));
@@ -348,7 +350,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         s["frame"].as_u64().is_some_and(|f| f < before_reset)
             && s["hands"][0]["attached"] == json!(false)
     })
-    .await;
+    .await?;
 
     // Young's-modulus colouring on; hand 1 grabs the near side, hand 2 the
     // far side (Shift+click), then both hands pull apart at full speed:
@@ -362,22 +364,19 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     click_main(client, u1, v1, false).await;
     let (u2, v2) = project(&view.cameras[0], far);
     click_main(client, u2, v2, true).await;
-    let both_holding = || {
+    let both_holding = wait_until("both hands to hold the object", || async move {
         let s = get_json(addr, "/api/state");
         s["hands"][0]["attached"] == json!(true) && s["hands"][1]["attached"] == json!(true)
-    };
-    let start = Instant::now();
-    while !both_holding() {
-        if start.elapsed() > PAGE_TIMEOUT {
-            // Say why: a missed click shows in the page's message, a
-            // divergence in the state's last_error.
-            return Err(format!(
-                "timed out waiting for both hands to hold the object: page says {:?}, state {}",
-                element_text(client, "message").await.unwrap_or_default(),
-                get_json(addr, "/api/state")
-            ));
-        }
-        tokio::time::sleep(Duration::from_millis(200)).await;
+    })
+    .await;
+    if let Err(timeout) = both_holding {
+        // Say why: a missed click shows in the page's message, a
+        // divergence in the state's last_error.
+        return Err(format!(
+            "{timeout}: page says {:?}, state {}",
+            element_text(client, "message").await.unwrap_or_default(),
+            get_json(addr, "/api/state")
+        ));
     }
     set_slider(client, "speed", 1.0).await;
     let pull = KeyActions::new("keyboard".into())

@@ -29,7 +29,6 @@ pub mod loss;
 pub mod material_fit;
 pub mod optim;
 pub mod plot;
-pub mod residual_validation;
 pub mod rgb_stage;
 pub mod run;
 pub mod sensitivity;

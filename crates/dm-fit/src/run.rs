@@ -11,7 +11,6 @@ use crate::material_fit::{
     train_frame_losses, train_loss,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
-use crate::residual_validation::{ResidualValidation, validate_residual, without_residual};
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
@@ -67,25 +66,6 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
-    /// Decide on the training clip whether the residual network carries
-    /// over to frames it has not seen (with --residual pgnd|mlp): the same
-    /// fit with and without the network on the first 70 % of the training
-    /// frames, both rolled out open loop over the other 30 %; the network
-    /// is kept only if it lowers their loss, and otherwise the fit goes on
-    /// as `--residual none`. Costs two fits of the shortened clip (kept in
-    /// `OUT/residual_validation/`). A network that lowers every training
-    /// loss can still raise the held-out error (the rope without an effect:
-    /// +27 %, docs/RESULTS.md, issue 4). Run records written before the
-    /// option read as `false`.
-    #[arg(long)]
-    #[serde(default)]
-    pub residual_validate: bool,
-    /// Fit only the first N frames of the training split (default: all of
-    /// it). `--residual-validate` fits its shortened clips so. Run records
-    /// written before the option used the whole split.
-    #[arg(long)]
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub train_frames: Option<usize>,
     /// Substeps differentiated per frame (truncated BPTT).
     #[arg(long, default_value_t = 20)]
     pub window: usize,
@@ -269,9 +249,6 @@ pub struct Checkpoint {
     /// late-frames`).
     #[serde(default)]
     pub kept_residual: Option<KeptResidual>,
-    /// `--residual-validate`'s decision, taken before the first step.
-    #[serde(default)]
-    pub residual_validation: Option<ResidualValidation>,
 }
 
 /// `fit_report.json` (contract keys: `material.E_median_pa`,
@@ -282,8 +259,7 @@ pub struct FitReport {
     pub material: serde_json::Value,
     pub dca: serde_json::Value,
     pub loss: serde_json::Value,
-    /// `kind` (pgnd | mlp | none: the saved model's network, none when
-    /// `--residual-validate` dropped it), the weight count, and `validation`.
+    /// `kind` (pgnd | mlp | none) and the network's weight count.
     pub residual: serde_json::Value,
     pub seconds: f64,
     pub options: FitOptions,
@@ -293,13 +269,13 @@ pub struct FitReport {
 
 pub const CHECKPOINT_FILE: &str = "checkpoint.json";
 
-pub(crate) fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig {
+fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig {
     MaterialFitConfig {
         iterations,
         learning_rate: options.lr,
         effect_learning_rate: options.effect_lr,
         window: options.window,
-        frames: options.train_frames,
+        frames: None,
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
         learn_effects: !options.freeze_effects,
@@ -416,7 +392,7 @@ pub fn run_fit_from(
     fit_stages(bundle, options, out, false, None, Some(initial), progress)
 }
 
-pub(crate) fn fit_stages(
+fn fit_stages(
     bundle: &Bundle,
     options: &FitOptions,
     out: &Path,
@@ -426,17 +402,6 @@ pub(crate) fn fit_stages(
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
     options.validate_track_noise()?;
-    let split = bundle.meta.split.train[1];
-    if let Some(frames) = options.train_frames
-        && !(2..=split).contains(&frames)
-    {
-        return Err(FitError::InvalidOption {
-            option: "--train-frames".into(),
-            problem: format!(
-                "{frames}: needs 2 to {split}, the frames of the bundle's training split"
-            ),
-        });
-    }
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut state = if resume && checkpoint_path.is_file() {
         let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
@@ -455,18 +420,9 @@ pub(crate) fn fit_stages(
         ));
         saved
     } else {
-        let mut model = match initial {
+        let model = match initial {
             Some(model) => model,
             None => WorldModel::from_bundle(bundle, &options.model)?,
-        };
-        let residual_validation = if options.residual_validate && model.residual.is_some() {
-            let validation = validate_residual(bundle, options, &model, out, resume, progress)?;
-            if !validation.kept {
-                model = without_residual(model);
-            }
-            Some(validation)
-        } else {
-            None
         };
         Checkpoint {
             options: options.clone(),
@@ -478,7 +434,6 @@ pub(crate) fn fit_stages(
             gain_search: Vec::new(),
             seconds: 0.0,
             kept_residual: None,
-            residual_validation,
         }
     };
     // Only once the options and the bundle have given a model: a refused run
@@ -671,9 +626,8 @@ pub(crate) fn fit_stages(
             "history": state.history,
         }),
         residual: serde_json::json!({
-            "kind": state.model.options.residual,
+            "kind": options.model.residual,
             "parameters": state.model.residual.as_ref().map_or(0, |r| r.parameters.len()),
-            "validation": state.residual_validation,
             "keep": options.residual_keep,
             "kept_step": state.kept_residual.as_ref().map(|k| k.step),
             "kept_late_loss": state.kept_residual.as_ref().map(|k| k.late_loss),

@@ -15,7 +15,7 @@ use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
-use dm_model::{ActuatorChoice, ModelOptions, ResidualState, WorldModel};
+use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -66,13 +66,6 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
-    /// When the residual network trains: beside the material in stages 1–2
-    /// and then alone (`joint`, method.md §7), or only after stages 1–2
-    /// have fitted the physics as `--residual none` would (`after-physics`).
-    /// Run records written before the option read as `joint`, as they ran.
-    #[arg(long, value_enum, default_value_t = ResidualTraining::Joint)]
-    #[serde(default)]
-    pub residual_training: ResidualTraining,
     /// Substeps differentiated per frame (truncated BPTT).
     #[arg(long, default_value_t = 20)]
     pub window: usize,
@@ -177,23 +170,6 @@ impl FitOptions {
     }
 }
 
-/// When the residual network trains ([`FitOptions::residual_training`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum ResidualTraining {
-    /// With the material in stages 1–2, then alone (method.md §7).
-    #[default]
-    Joint,
-    /// Stages 1–2 fit the physics without the network; it joins, untrained,
-    /// for the residual-only stage. With the network beside it, the joint
-    /// fit of a stretched rope without any hidden effect landed on physics
-    /// whose own rollout is 55 % worse held out than the physics-only
-    /// fit's (9.41 against 6.06 mm), and the network's correction, learnt
-    /// on the training frames, did not make up for it there (7.95 mm;
-    /// docs/RESULTS.md, issue 4, twenty-second session).
-    AfterPhysics,
-}
-
 /// Which iterate of the residual-only stage the fit keeps.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -273,10 +249,6 @@ pub struct Checkpoint {
     /// late-frames`).
     #[serde(default)]
     pub kept_residual: Option<KeptResidual>,
-    /// With `--residual-training after-physics`: the untrained network,
-    /// held out of the model until the residual-only stage.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub pending_residual: Option<ResidualState>,
 }
 
 /// `fit_report.json` (contract keys: `material.E_median_pa`,
@@ -448,22 +420,10 @@ fn fit_stages(
         ));
         saved
     } else {
-        let mut model = match initial {
+        let model = match initial {
             Some(model) => model,
             None => WorldModel::from_bundle(bundle, &options.model)?,
         };
-        let pending_residual = match options.residual_training {
-            ResidualTraining::Joint => None,
-            ResidualTraining::AfterPhysics => model.residual.take(),
-        };
-        if pending_residual.is_some() && options.residual_iters == 0 {
-            return Err(FitError::InvalidOption {
-                option: "--residual-training".into(),
-                problem: "after-physics trains the network in the residual-only stage only; \
-                          give it steps with --residual-iters"
-                    .into(),
-            });
-        }
         Checkpoint {
             options: options.clone(),
             stage: Stage::Material1,
@@ -474,7 +434,6 @@ fn fit_stages(
             gain_search: Vec::new(),
             seconds: 0.0,
             kept_residual: None,
-            pending_residual,
         }
     };
     // Only once the options and the bundle have given a model: a refused run
@@ -537,11 +496,6 @@ fn fit_stages(
                     state.history.push(report);
                     state.iteration += 1;
                 } else {
-                    if state.stage == Stage::Material2
-                        && let Some(network) = state.pending_residual.take()
-                    {
-                        state.model.residual = Some(network);
-                    }
                     let residual_stage_runs =
                         options.residual_iters > 0 && state.model.residual.is_some();
                     let previous = state.stage;

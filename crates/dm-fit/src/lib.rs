@@ -29,6 +29,7 @@ pub mod loss;
 pub mod material_fit;
 pub mod optim;
 pub mod plot;
+pub mod residual_check;
 pub mod rgb_stage;
 pub mod run;
 pub mod sensitivity;

@@ -31,9 +31,13 @@ const ONE_STEP: [&str; 10] = [
 
 /// dm-fit's options for the shortest staged fit plus `flags`.
 pub fn fit_options(flags: &[&str]) -> FitOptions {
-    Flags::try_parse_from(ONE_STEP.iter().chain(flags))
-        .expect("flags")
-        .options
+    try_fit_options(flags).expect("flags")
+}
+
+/// The same, or clap's refusal of `flags`.
+#[allow(dead_code)] // Not every test binary that shares this module refuses flags.
+pub fn try_fit_options(flags: &[&str]) -> Result<FitOptions, clap::Error> {
+    Flags::try_parse_from(ONE_STEP.iter().chain(flags)).map(|f| f.options)
 }
 
 /// `SynthConfig::tiny` rope, seed 5, written under `dir` and opened.

@@ -84,6 +84,21 @@ fn main() -> Result<()> {
         percent("nu_minus_0.05"),
         percent("nu_plus_0.05"),
     );
+    let check = &report.residual["check"];
+    if let (Some(gain), Some(min_gain)) = (check["gain"].as_f64(), check["min_gain"].as_f64()) {
+        let verdict = if check["kept"].as_bool() == Some(true) {
+            "kept".to_string()
+        } else {
+            format!(
+                "dropped, below the {:.0} % threshold: the model is the fit without it (--residual-min-gain 0 keeps it)",
+                100.0 * min_gain
+            )
+        };
+        println!(
+            "  residual network: train Track {:+.1} % against the fit without it; {verdict}",
+            -100.0 * gain
+        );
+    }
     if let Some(rows) = report.material["identifiability"]["parameters"].as_array() {
         let bounds: Vec<String> = rows
             .iter()

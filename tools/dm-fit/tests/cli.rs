@@ -60,7 +60,14 @@ fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
     let scene = tiny_scene(dir.path(), Preset::Cloth, 4);
 
     let whole = dir.path().join("whole");
-    fit(&scene, &whole, &[]);
+    let output = fit(&scene, &whole, &[]);
+    // The default network went through the residual check, and the
+    // summary says what it decided.
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        stdout.contains("residual network: train Track"),
+        "no residual check line in {stdout}"
+    );
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(whole.join("fit_report.json")).expect("report"))
             .expect("json");

@@ -81,7 +81,7 @@ pub fn physics_only_options(options: &FitOptions) -> FitOptions {
 }
 
 /// Fits the physics-only model from `start` (the main fit's starting
-/// model, network removed) under `out/`[`CHECK_DIR`], resuming it with
+/// model; its network, if any, is removed) under `out/`[`CHECK_DIR`], resuming it with
 /// `resume`, and compares it with `fitted` (the main fit's model at the end
 /// of its dynamics stages). Returns the decision and the physics-only fit's
 /// final checkpoint, whose model, Adam state and history the main fit takes

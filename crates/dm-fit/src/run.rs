@@ -11,7 +11,7 @@ use crate::material_fit::{
     train_frame_losses, train_loss,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
-use crate::residual_check::{ResidualCheck, check_residual};
+use crate::residual_check::{ResidualCheck, check_residual, physics_only_options};
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
@@ -565,9 +565,13 @@ pub(crate) fn fit_stages(
                     }
                     let dynamics_done = matches!(state.stage, Stage::Rgb | Stage::Done);
                     if dynamics_done && checks_residual && state.model.residual.is_some() {
+                        // Built as `--residual none` builds it: no network to make and strip.
                         let start = match &check_start {
                             Some(model) => model.clone(),
-                            None => WorldModel::from_bundle(bundle, &options.model)?,
+                            None => WorldModel::from_bundle(
+                                bundle,
+                                &physics_only_options(options).model,
+                            )?,
                         };
                         let (check, physics_only) = check_residual(
                             bundle,

@@ -103,20 +103,19 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
     (config, effect)
 }
 
-/// Synthesises, fits (with `fit`, unless `dir` already holds a model fitted
-/// with it) and diagnoses one scene under `dir`.
-pub fn run_scene(
+/// Synthesises draw `seed`'s scene under `dir` (`scene/`,
+/// `scene.truth.json`) and fits it with `fit` (`model/`), each unless `dir`
+/// already holds it.
+pub fn prepare_scene(
     seed: u64,
     null: bool,
     dir: &Path,
     fit: &FitOptions,
-    options: &DiagnoseOptions,
-) -> Result<(SceneResult, Diagnosis), DiagnoseError> {
+) -> Result<(SynthConfig, Option<EffectSpec>), DiagnoseError> {
     let (config, effect) = scene_config(seed, null);
     let scene = dir.join("scene");
     let truth = dir.join("scene.truth.json");
     let model = dir.join("model");
-    let out = dir.join("diagnosis");
     if !scene.join("bundle.json").is_file() {
         generate(&config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| DiagnoseError::Input {
             path: scene.clone(),
@@ -133,11 +132,24 @@ pub fn run_scene(
     if !model.join("model.json").is_file() || !fitted_with(&model) {
         run_fit(&bundle, fit, &model, false, None, &mut |_| {})?;
     }
+    Ok((config, effect))
+}
+
+/// Synthesises, fits (with `fit`, unless `dir` already holds a model fitted
+/// with it) and diagnoses one scene under `dir`.
+pub fn run_scene(
+    seed: u64,
+    null: bool,
+    dir: &Path,
+    fit: &FitOptions,
+    options: &DiagnoseOptions,
+) -> Result<(SceneResult, Diagnosis), DiagnoseError> {
+    let (config, effect) = prepare_scene(seed, null, dir, fit)?;
     let d = diagnose(
-        &model,
-        &scene,
-        &out,
-        Some(&truth),
+        &dir.join("model"),
+        &dir.join("scene"),
+        &dir.join("diagnosis"),
+        Some(&dir.join("scene.truth.json")),
         options,
         &mut |_, _, _| {},
     )?;

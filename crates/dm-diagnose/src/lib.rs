@@ -20,6 +20,7 @@
 pub mod analysis;
 pub mod candidates;
 pub mod evaluation;
+pub mod oracle;
 mod plots;
 mod report;
 pub mod signatures;

@@ -3,6 +3,7 @@
 //! two orthogonal axes (a square cloth's first axis is arbitrary).
 
 use dm_diagnose::candidates::{Candidate, apply, trials, with_learnt_parameters};
+use dm_diagnose::oracle::truth_candidate;
 use dm_diagnose::signatures::Signatures;
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Preset, SynthConfig};
@@ -16,14 +17,16 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 fn tiny_cloth_model(dir: &std::path::Path) -> WorldModel {
+    tiny_cloth_model_with(dir, None)
+}
+
+/// A tiny cloth scene under `dir` (`scene/`, `truth.json`), with `effect`
+/// hidden in its truth, and the model `--residual none` would start from.
+fn tiny_cloth_model_with(dir: &std::path::Path, effect: Option<&str>) -> WorldModel {
     let scene = dir.join("scene");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Cloth, 7),
-        &scene,
-        &dir.join("truth.json"),
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
+    let mut config = SynthConfig::tiny(Preset::Cloth, 7);
+    config.effect = effect.map(|e| e.parse().expect("effect spec"));
+    dm_synth::generate(&config, &scene, &dir.join("truth.json"), &mut |_, _, _| {}).expect("scene");
     let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
     let options = ModelOptions {
         residual: ResidualKind::None,
@@ -138,4 +141,112 @@ fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
     let learnt = with_learnt_parameters(Candidate::DensityVariation, &density, &fitted);
     assert_eq!(learnt["heavy_end_excess"], -3.4);
     assert_eq!((learnt["axis_x"], learnt["axis_y"]), (0.6, -0.8));
+}
+
+/// Gravity read back through the candidate's tilt and azimuth: acos and
+/// atan2 round-trips in f64 lose a few ulps of a 9.8 m/s² vector.
+const GRAVITY_RTOL: f64 = 1e-9;
+/// The model's density factors are linear in the coordinate along the
+/// truth's axis; only the particle set's extent along it differs from the
+/// truth cloud's, which changes the slope, not the linearity.
+const LINEAR_CORRELATION_MIN: f64 = 0.999_999;
+
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+    let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+    let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+    cov / (va * vb).sqrt()
+}
+
+/// The oracle fit (issue 6) starts from the truth's effect in the
+/// candidate's terms: the tilt gives back the truth's gravity, the density
+/// gradient its axis and heavy end, the lag its frames; a scene without an
+/// effect is refused, naming the field.
+#[test]
+fn issue6_oracle_reads_the_truth_effect_as_its_candidate() {
+    let truth_of = |dir: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).expect("truth"))
+            .expect("truth JSON")
+    };
+    let fps = 30.0;
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = tiny_cloth_model_with(dir.path(), Some("ground_tilt:7.5"));
+    let truth = truth_of(dir.path());
+    let (candidate, params) =
+        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("tilt");
+    assert_eq!(candidate, Candidate::GroundTilt);
+    assert!((params["tilt_deg"] - 7.5).abs() < 1e-9, "{params:?}");
+    let tilted = apply(&model, candidate, &params);
+    let g: Vec<f64> = truth["effect"]["params"]["gravity"]
+        .as_array()
+        .expect("gravity")
+        .iter()
+        .map(|v| v.as_f64().expect("number"))
+        .collect();
+    for a in 0..3 {
+        assert!(
+            (tilted.physics.gravity[a] - g[a]).abs() < GRAVITY_RTOL * 9.8,
+            "gravity {:?} against the truth's {g:?}",
+            tilted.physics.gravity
+        );
+    }
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = tiny_cloth_model_with(dir.path(), Some("density_variation:3"));
+    let truth = truth_of(dir.path());
+    let (candidate, params) =
+        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("density");
+    assert_eq!(candidate, Candidate::DensityVariation);
+    assert_eq!(params["heavy_end_excess"], 3.0);
+    let graded = apply(&model, candidate, &params);
+    let factors = graded
+        .extension
+        .density_factors(&graded.particles)
+        .expect("a gradient");
+    let axis = truth["effect"]["params"]["axis"].as_u64().expect("axis") as usize;
+    let sign = if truth["effect"]["params"]["heavy_at_max"]
+        .as_bool()
+        .expect("heavy end")
+    {
+        1.0
+    } else {
+        -1.0
+    };
+    let toward_heavy: Vec<f64> = graded.particles.iter().map(|p| sign * p[axis]).collect();
+    let r = pearson(&factors, &toward_heavy);
+    assert!(
+        r > LINEAR_CORRELATION_MIN,
+        "factors against the heavy-end coordinate: r = {r}"
+    );
+    let (lo, hi) = factors
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), &f| {
+            (lo.min(f), hi.max(f))
+        });
+    assert!(
+        (hi / lo - 4.0).abs() < 1e-9,
+        "heavy end 1 + 3 times the light: {lo} … {hi}"
+    );
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = tiny_cloth_model_with(dir.path(), Some("actuator_lag:0.1"));
+    let truth = truth_of(dir.path());
+    let (candidate, params) =
+        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("lag");
+    assert_eq!(candidate, Candidate::ActuatorLag);
+    assert!((params["lag_frames"] - 3.0).abs() < 1e-9, "{params:?}");
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = tiny_cloth_model_with(dir.path(), None);
+    let path = dir.path().join("truth.json");
+    let error = truth_candidate(&truth_of(dir.path()), &model, fps, &path)
+        .expect_err("no effect to read")
+        .to_string();
+    assert!(
+        error.contains("truth.json") && error.contains("`effect`"),
+        "{error}"
+    );
 }

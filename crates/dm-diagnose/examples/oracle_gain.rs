@@ -2,7 +2,7 @@
 //! (issue 6): the scene's base fit repeated with the hidden effect's true
 //! term in place from the start (`dm_diagnose::oracle`).
 //!
-//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [--frozen] [--quick-fit]
+//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--quick-fit]
 //!
 //! For each hidden-effect draw SEED, OUT_DIR/hiddenSEED is the directory
 //! `diagnose_eval` uses: its scene and base fit are reused (or made, with
@@ -10,10 +10,16 @@
 //! OUT_DIR/hiddenSEED/oracle. One line per scene is printed and appended
 //! to OUT_DIR/oracle.jsonl. With `--frozen` the effect is held at the
 //! truth instead of learnt from it (OUT_DIR/hiddenSEED/oracle_frozen,
-//! OUT_DIR/oracle_frozen.jsonl).
+//! OUT_DIR/oracle_frozen.jsonl). With `--effect NAME:MAG` each draw's
+//! preset and action are kept but NAME is hidden at MAG instead of the
+//! drawn effect (OUT_DIR/hiddenSEED-NAME-MAG): a magnitude sweep.
 
-use dm_diagnose::evaluation::{evaluation_fit_options, prepare_scene, quick_fit_options};
+use dm_diagnose::evaluation::{
+    evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
+    scene_config_with_effect,
+};
 use dm_diagnose::oracle::oracle_fit;
+use dm_synth::EffectSpec;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -25,9 +31,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         evaluation_fit_options()
     };
     let frozen = args.iter().any(|a| a == "--frozen");
+    let effect: Option<EffectSpec> = match args.iter().position(|a| a == "--effect") {
+        Some(i) => {
+            let spec = args.get(i + 1).ok_or("--effect needs NAME:MAG")?.clone();
+            args.drain(i..=i + 1);
+            Some(spec.parse()?)
+        }
+        None => None,
+    };
     let name = if frozen { "oracle_frozen" } else { "oracle" };
     args.retain(|a| a != "--quick-fit" && a != "--frozen");
-    let usage = "usage: oracle_gain OUT_DIR SEED [SEED ...] [--frozen] [--quick-fit]";
+    let usage =
+        "usage: oracle_gain OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--quick-fit]";
     let out = PathBuf::from(args.first().ok_or(usage)?);
     let seeds: Vec<u64> = args[1..]
         .iter()
@@ -37,9 +52,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err(usage.into());
     }
     for seed in seeds {
-        let dir = out.join(format!("hidden{seed}"));
+        let (config, dir) = match effect {
+            Some(e) => (
+                scene_config_with_effect(seed, e),
+                out.join(format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude)),
+            ),
+            None => (
+                scene_config(seed, false).0,
+                out.join(format!("hidden{seed}")),
+            ),
+        };
+        let effect = config.effect;
         let start = std::time::Instant::now();
-        let (config, effect) = prepare_scene(seed, false, &dir, &fit)?;
+        prepare_scene(&config, &dir, &fit)?;
         let r = oracle_fit(
             &dir.join("scene"),
             &dir.join("scene.truth.json"),

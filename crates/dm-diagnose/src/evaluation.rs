@@ -103,21 +103,29 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
     (config, effect)
 }
 
-/// Synthesises draw `seed`'s scene under `dir` (`scene/`,
-/// `scene.truth.json`) and fits it with `fit` (`model/`), each unless `dir`
-/// already holds it.
+/// Draw `seed`'s scene (its preset and seed) with `effect` hidden instead
+/// of the drawn one, filmed by the evaluation's rule (friction with a push,
+/// the others with the seed's action): for sweeps of one effect's
+/// magnitude.
+pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
+    let (mut config, _) = scene_config(seed, false);
+    config.effect = Some(effect);
+    config.action = effect.name.exciting_action();
+    config
+}
+
+/// Synthesises `config`'s scene under `dir` (`scene/`, `scene.truth.json`)
+/// and fits it with `fit` (`model/`), each unless `dir` already holds it.
 pub fn prepare_scene(
-    seed: u64,
-    null: bool,
+    config: &SynthConfig,
     dir: &Path,
     fit: &FitOptions,
-) -> Result<(SynthConfig, Option<EffectSpec>), DiagnoseError> {
-    let (config, effect) = scene_config(seed, null);
+) -> Result<(), DiagnoseError> {
     let scene = dir.join("scene");
     let truth = dir.join("scene.truth.json");
     let model = dir.join("model");
     if !scene.join("bundle.json").is_file() {
-        generate(&config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| DiagnoseError::Input {
+        generate(config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| DiagnoseError::Input {
             path: scene.clone(),
             problem: e.to_string(),
         })?;
@@ -132,7 +140,7 @@ pub fn prepare_scene(
     if !model.join("model.json").is_file() || !fitted_with(&model) {
         run_fit(&bundle, fit, &model, false, None, &mut |_| {})?;
     }
-    Ok((config, effect))
+    Ok(())
 }
 
 /// Synthesises, fits (with `fit`, unless `dir` already holds a model fitted
@@ -144,7 +152,8 @@ pub fn run_scene(
     fit: &FitOptions,
     options: &DiagnoseOptions,
 ) -> Result<(SceneResult, Diagnosis), DiagnoseError> {
-    let (config, effect) = prepare_scene(seed, null, dir, fit)?;
+    let (config, effect) = scene_config(seed, null);
+    prepare_scene(&config, dir, fit)?;
     let d = diagnose(
         &dir.join("model"),
         &dir.join("scene"),

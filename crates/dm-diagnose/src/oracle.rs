@@ -73,31 +73,21 @@ pub fn truth_candidate(
     let pairs = |kv: &[(&str, f64)]| -> BTreeMap<String, f64> {
         kv.iter().map(|(k, v)| (k.to_string(), *v)).collect()
     };
+    // Effects of one parameter: dm-synth's name, the candidate, the truth's
+    // key, the candidate's key, and the factor to the candidate's unit.
+    #[rustfmt::skip]
+    let single: [(&str, Candidate, &str, &str, f64); 6] = [
+        ("air_drag", Candidate::AirDrag, "linear_per_s", "linear_per_s", 1.0),
+        ("air_drag_quadratic", Candidate::AirDrag, "quadratic_per_m", "quadratic_per_m", 1.0),
+        ("floor_friction", Candidate::FloorFriction, "coefficient", "coefficient", 1.0),
+        ("plasticity", Candidate::Plasticity, "yield_stretch", "yield_stretch", 1.0),
+        ("viscous_damping", Candidate::ViscousDamping, "viscosity_pa_s", "viscosity_pa_s", 1.0),
+        ("actuator_lag", Candidate::ActuatorLag, "lag_s", "lag_frames", fps),
+    ];
+    if let Some(&(_, candidate, truth_key, key, scale)) = single.iter().find(|s| s.0 == name) {
+        return Ok((candidate, pairs(&[(key, number(truth_key)? * scale)])));
+    }
     Ok(match name {
-        "air_drag" => (
-            Candidate::AirDrag,
-            pairs(&[("linear_per_s", number("linear_per_s")?)]),
-        ),
-        "air_drag_quadratic" => (
-            Candidate::AirDrag,
-            pairs(&[("quadratic_per_m", number("quadratic_per_m")?)]),
-        ),
-        "floor_friction" => (
-            Candidate::FloorFriction,
-            pairs(&[("coefficient", number("coefficient")?)]),
-        ),
-        "plasticity" => (
-            Candidate::Plasticity,
-            pairs(&[("yield_stretch", number("yield_stretch")?)]),
-        ),
-        "viscous_damping" => (
-            Candidate::ViscousDamping,
-            pairs(&[("viscosity_pa_s", number("viscosity_pa_s")?)]),
-        ),
-        "actuator_lag" => (
-            Candidate::ActuatorLag,
-            pairs(&[("lag_frames", number("lag_s")? * fps)]),
-        ),
         "stiff_inclusion" => {
             let centre = params
                 .and_then(|p| p.get("centre_m"))

@@ -157,17 +157,22 @@ const DENSITY_FACTOR_ATOL: f64 = 1e-9;
 /// effect is refused, naming the field.
 #[test]
 fn issue6_oracle_reads_the_truth_effect_as_its_candidate() {
-    let truth_of = |dir: &std::path::Path| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).expect("truth"))
-            .expect("truth JSON")
-    };
     let fps = 30.0;
+    // A tiny cloth with `effect` hidden: its model, its truth file, and
+    // what the oracle reads from the truth.
+    let read = |effect: Option<&str>| {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let model = tiny_cloth_model_with(dir.path(), effect);
+        let path = dir.path().join("truth.json");
+        let truth: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("truth"))
+                .expect("truth JSON");
+        let read = truth_candidate(&truth, &model, fps, &path);
+        (model, truth, read)
+    };
 
-    let dir = tempfile::tempdir().expect("temp dir");
-    let model = tiny_cloth_model_with(dir.path(), Some("ground_tilt:7.5"));
-    let truth = truth_of(dir.path());
-    let (candidate, params) =
-        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("tilt");
+    let (model, truth, read_back) = read(Some("ground_tilt:7.5"));
+    let (candidate, params) = read_back.expect("tilt");
     assert_eq!(candidate, Candidate::GroundTilt);
     assert!((params["tilt_deg"] - 7.5).abs() < 1e-9, "{params:?}");
     let tilted = apply(&model, candidate, &params);
@@ -185,11 +190,8 @@ fn issue6_oracle_reads_the_truth_effect_as_its_candidate() {
         );
     }
 
-    let dir = tempfile::tempdir().expect("temp dir");
-    let model = tiny_cloth_model_with(dir.path(), Some("density_variation:3"));
-    let truth = truth_of(dir.path());
-    let (candidate, params) =
-        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("density");
+    let (model, truth, read_back) = read(Some("density_variation:3"));
+    let (candidate, params) = read_back.expect("density");
     assert_eq!(candidate, Candidate::DensityVariation);
     assert_eq!(params["heavy_end_excess"], 3.0);
     let graded = apply(&model, candidate, &params);
@@ -216,20 +218,13 @@ fn issue6_oracle_reads_the_truth_effect_as_its_candidate() {
         );
     }
 
-    let dir = tempfile::tempdir().expect("temp dir");
-    let model = tiny_cloth_model_with(dir.path(), Some("actuator_lag:0.1"));
-    let truth = truth_of(dir.path());
-    let (candidate, params) =
-        truth_candidate(&truth, &model, fps, &dir.path().join("truth.json")).expect("lag");
+    let (_, _, read_back) = read(Some("actuator_lag:0.1"));
+    let (candidate, params) = read_back.expect("lag");
     assert_eq!(candidate, Candidate::ActuatorLag);
     assert!((params["lag_frames"] - 3.0).abs() < 1e-9, "{params:?}");
 
-    let dir = tempfile::tempdir().expect("temp dir");
-    let model = tiny_cloth_model_with(dir.path(), None);
-    let path = dir.path().join("truth.json");
-    let error = truth_candidate(&truth_of(dir.path()), &model, fps, &path)
-        .expect_err("no effect to read")
-        .to_string();
+    let (_, _, read_back) = read(None);
+    let error = read_back.expect_err("no effect to read").to_string();
     assert!(
         error.contains("truth.json") && error.contains("`effect`"),
         "{error}"

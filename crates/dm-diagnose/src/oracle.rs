@@ -70,6 +70,12 @@ pub fn truth_candidate(
             .and_then(|v| v.as_f64())
             .ok_or_else(|| problem(format!("`effect.params.{key}` is missing or not a number")))
     };
+    let vector = |key: &str| {
+        params
+            .and_then(|p| p.get(key))
+            .and_then(|v| serde_json::from_value::<[f64; 3]>(v.clone()).ok())
+            .ok_or_else(|| problem(format!("`effect.params.{key}` is not three numbers")))
+    };
     let pairs = |kv: &[(&str, f64)]| -> BTreeMap<String, f64> {
         kv.iter().map(|(k, v)| (k.to_string(), *v)).collect()
     };
@@ -89,10 +95,7 @@ pub fn truth_candidate(
     }
     Ok(match name {
         "stiff_inclusion" => {
-            let centre = params
-                .and_then(|p| p.get("centre_m"))
-                .and_then(|c| serde_json::from_value::<[f64; 3]>(c.clone()).ok())
-                .ok_or_else(|| problem("`effect.params.centre_m` is not three numbers".into()))?;
+            let centre = vector("centre_m")?;
             (
                 Candidate::StiffInclusion,
                 pairs(&[
@@ -132,10 +135,7 @@ pub fn truth_candidate(
         "ground_tilt" => {
             // The truth's gravity, read back in the candidate's tilt and
             // azimuth about this model's floor.
-            let gravity = params
-                .and_then(|p| p.get("gravity"))
-                .and_then(|g| serde_json::from_value::<[f64; 3]>(g.clone()).ok())
-                .ok_or_else(|| problem("`effect.params.gravity` is not three numbers".into()))?;
+            let gravity = vector("gravity")?;
             let mut tilted = model.clone();
             tilted.physics.gravity = gravity;
             let keys = pairs(&[("tilt_deg", 0.0), ("azimuth_deg", 0.0)]);

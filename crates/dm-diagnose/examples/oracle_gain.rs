@@ -2,7 +2,7 @@
 //! (issue 6): the scene's base fit repeated with the hidden effect's true
 //! term in place from the start (`dm_diagnose::oracle`).
 //!
-//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--quick-fit]
+//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--frames N] [--quick-fit]
 //!
 //! For each hidden-effect draw SEED, OUT_DIR/hiddenSEED is the directory
 //! `diagnose_eval` uses: its scene and base fit are reused (or made, with
@@ -12,7 +12,11 @@
 //! truth instead of learnt from it (OUT_DIR/hiddenSEED/oracle_frozen,
 //! OUT_DIR/oracle_frozen.jsonl). With `--effect NAME:MAG` each draw's
 //! preset and action are kept but NAME is hidden at MAG instead of the
-//! drawn effect (OUT_DIR/hiddenSEED-NAME-MAG): a magnitude sweep.
+//! drawn effect (OUT_DIR/hiddenSEED-NAME-MAG): a magnitude sweep. With
+//! `--frames N` the scene is filmed for N frames instead of the
+//! evaluation's 36 (the hands' motion is stretched over the clip; the
+//! last 30 % stay held out; directory suffix `-fN`): does a longer clip
+//! let the true effect show?
 
 use dm_diagnose::evaluation::{
     evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
@@ -39,10 +43,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         None => None,
     };
+    let frames: Option<usize> = match args.iter().position(|a| a == "--frames") {
+        Some(i) => {
+            let n = args.get(i + 1).ok_or("--frames needs N")?.parse()?;
+            args.drain(i..=i + 1);
+            Some(n)
+        }
+        None => None,
+    };
     let name = if frozen { "oracle_frozen" } else { "oracle" };
     args.retain(|a| a != "--quick-fit" && a != "--frozen");
-    let usage =
-        "usage: oracle_gain OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--quick-fit]";
+    let usage = "usage: oracle_gain OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--frames N] [--quick-fit]";
     let out = PathBuf::from(args.first().ok_or(usage)?);
     let seeds: Vec<u64> = args[1..]
         .iter()
@@ -52,7 +63,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err(usage.into());
     }
     for seed in seeds {
-        let (config, dir) = match effect {
+        let (mut config, mut dir) = match effect {
             Some(e) => (
                 scene_config_with_effect(seed, e),
                 out.join(format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude)),
@@ -62,6 +73,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 out.join(format!("hidden{seed}")),
             ),
         };
+        if let Some(n) = frames {
+            config.frames = n;
+            dir.as_mut_os_string().push(format!("-f{n}"));
+        }
         let effect = config.effect;
         let start = std::time::Instant::now();
         prepare_scene(&config, &dir, &fit)?;

@@ -9,6 +9,7 @@ use dm_view::ViewError;
 use dm_view::chart::{ChartOptions, ChartSeries, FONT_FAMILY, ValueScale, line_chart};
 use image::{Rgb, RgbImage};
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
 
 pub(crate) struct PlotInputs<'a> {
@@ -418,12 +419,17 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
 
     // 4. Candidate scores (bars) with the threshold (grey line).
     let cands = &p.diagnosis.candidates;
-    let smax = cands
+    // The top and bottom leave room for the value written beyond each bar
+    // (a bar ending at the axis looked cut off); a bar past a cap is drawn
+    // to the cap and its value says how far it goes.
+    let top = cands
         .iter()
         .map(|c| c.score)
         .fold(p.diagnosis.threshold * 1.5, f64::max)
         .min(1.0);
-    let smin = -smax.min(0.3);
+    let bottom = cands.iter().map(|c| c.score).fold(0.0, f64::min).max(-0.3);
+    let room = 0.15 * (top - bottom);
+    let (smin, smax) = (bottom - room, top + room);
     let n = cands.len().max(1);
     let threshold = p.diagnosis.threshold;
     let img = draw_with_plotters(960, 340, |root| {
@@ -462,12 +468,28 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
             let mut bar = Rectangle::new(
                 [
                     (SegmentValue::Exact(i), 0.0),
-                    (SegmentValue::Exact(i + 1), c.score.clamp(smin, smax)),
+                    (SegmentValue::Exact(i + 1), c.score.clamp(bottom, top)),
                 ],
                 rgb(color).filled(),
             );
             bar.set_margin(0, 0, 8, 8);
             bar
+        }))?;
+        chart.draw_series(cands.iter().enumerate().map(|(i, c)| {
+            let end = c.score.clamp(bottom, top);
+            let (y, v) = if c.score >= 0.0 {
+                (end + 0.02 * (smax - smin), VPos::Bottom)
+            } else {
+                (end - 0.02 * (smax - smin), VPos::Top)
+            };
+            Text::new(
+                format!("{:.3}", c.score),
+                (SegmentValue::CenterOf(i), y),
+                (FONT_FAMILY, 12)
+                    .into_font()
+                    .color(&BLACK)
+                    .pos(Pos::new(HPos::Center, v)),
+            )
         }))?;
         chart.draw_series(DashedLineSeries::new(
             [
@@ -485,8 +507,8 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         file: "candidates.png".into(),
         caption: format!(
             "Score per candidate, named under its bar, in the table's order (red: the named cause; \
-             y: {:.2} to {:.2}); dashed grey: the `none` threshold {:.2}.",
-            -smax.min(0.3),
+             y: {:.2} to {:.2}, each bar's score written at its end); dashed grey: the `none` threshold {:.2}.",
+            smin,
             smax,
             p.diagnosis.threshold
         ),

@@ -115,7 +115,8 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 }
 
 /// Synthesises `config`'s scene under `dir` (`scene/`, `scene.truth.json`)
-/// and fits it with `fit` (`model/`), each unless `dir` already holds it.
+/// and fits it with `fit` (`model/`), each unless `dir` already holds it
+/// (made by this version of the truth simulation, fitted with `fit`).
 pub fn prepare_scene(
     config: &SynthConfig,
     dir: &Path,
@@ -124,7 +125,21 @@ pub fn prepare_scene(
     let scene = dir.join("scene");
     let truth = dir.join("scene.truth.json");
     let model = dir.join("model");
-    if !scene.join("bundle.json").is_file() {
+    // A scene made by another version of the truth simulation is made
+    // again, and its model fitted again.
+    let current = |truth: &Path| {
+        dm_bundle::read_json::<dm_synth::TruthFile>(truth)
+            .is_ok_and(|t| t.truth_version == dm_synth::TRUTH_VERSION)
+    };
+    if !scene.join("bundle.json").is_file() || !current(&truth) {
+        for stale in [&scene, &model] {
+            if stale.is_dir() {
+                std::fs::remove_dir_all(stale).map_err(|e| DiagnoseError::Input {
+                    path: stale.clone(),
+                    problem: format!("removing a stale directory: {e}"),
+                })?;
+            }
+        }
         generate(config, &scene, &truth, &mut |_, _, _| {}).map_err(|e| DiagnoseError::Input {
             path: scene.clone(),
             problem: e.to_string(),

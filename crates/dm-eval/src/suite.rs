@@ -14,7 +14,7 @@ use dm_fit::material_fit::FitError;
 use dm_fit::run::{FitOptions, FitOutcome, run_fit};
 use dm_model::ModelError;
 use dm_mpm::SimError;
-use dm_synth::{Action, EffectSpec, Preset, SynthConfig, SynthError, TruthFile};
+use dm_synth::{Action, EffectSpec, Preset, SynthConfig, SynthError, TRUTH_VERSION, TruthFile};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -312,14 +312,22 @@ pub struct RunResult {
     pub fit_seconds: f64,
     pub eval_seconds: f64,
     pub synth: SynthConfig,
+    /// dm-synth's [`TRUTH_VERSION`] of the scene (absent: 1).
+    #[serde(default = "first_truth_version")]
+    pub truth_version: u32,
     pub fit: FitOptions,
     pub camera: usize,
     pub lpips: bool,
 }
 
+fn first_truth_version() -> u32 {
+    1
+}
+
 impl RunResult {
     fn same_inputs(&self, other: &RunResult) -> bool {
         self.synth == other.synth
+            && self.truth_version == other.truth_version
             && self.fit == other.fit
             && self.camera == other.camera
             && self.lpips == other.lpips
@@ -435,7 +443,8 @@ fn scene_bundle(
     let bundle_dir = dir.join("bundle");
     let truth_path = dir.join("truth.json");
     let cached = truth_path.is_file()
-        && dm_bundle::read_json::<TruthFile>(&truth_path).is_ok_and(|t| t.config == scene.config);
+        && dm_bundle::read_json::<TruthFile>(&truth_path)
+            .is_ok_and(|t| t.config == scene.config && t.truth_version == TRUTH_VERSION);
     if !cached {
         remove_dir_if_present(&dir)?;
         std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, "creating", &e))?;
@@ -575,6 +584,7 @@ pub fn run_suite(
                 fit_seconds: 0.0,
                 eval_seconds: 0.0,
                 synth: scene.config.clone(),
+                truth_version: TRUTH_VERSION,
                 fit: variant.options.clone(),
                 camera: suite.file.camera,
                 lpips: lpips.is_some(),
@@ -1001,6 +1011,7 @@ mod tests {
             fit_seconds: 1.0,
             eval_seconds: 1.0,
             synth: config_of(scene),
+            truth_version: TRUTH_VERSION,
             fit: variant.options.clone(),
             camera: 0,
             lpips: false,

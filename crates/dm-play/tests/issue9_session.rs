@@ -128,27 +128,30 @@ fn issue9_a_strong_pull_tears_the_object() {
     // stretch the rigid grip patches pull out of the object at any E (the
     // deformation gradient is clamped at 2x stretch, which caps the stress
     // a particle can carry): one piece at rest, three after, and the stiff
-    // object's body stays whole: its main piece keeps all but the grip
-    // patches (>= 85 %; the patches hold 11 %). (Measured since grid damping
-    // became a rate: [708, 46, 42] at E x0.1, x0.3 and x1 and [709, 46, 42]
-    // at x3, for pulls of 0.3-0.5 m/s and particle damping 0 or 5 /s. With the
+    // object's body stays whole: its main piece keeps every particle the
+    // hands do not hold. (Measured since grid damping became a rate:
+    // [708, 46, 42] at E x0.1, x0.3 and x1 and [709, 46, 42] at x3, for
+    // pulls of 0.3-0.5 m/s and particle damping 0 or 5 /s; on the scene of
+    // the truth with room to its walls (dm-synth TRUTH_VERSION 2), whose
+    // fit grasps 69 + 57 particles, [675, 62, 51] at x0.3 and x3. With the
     // damping per CFL substep, which damped a soft object less, E x0.3 also
     // lost a 17-particle chunk of its body: [674, 63, 45] against
     // [737, 45] at E x3.)
     let (soft_before, soft, soft_session) = pull_apart(0.3, 0.3, 10);
-    let (_, stiff, _) = pull_apart(3.0, 0.3, 10);
+    let (_, stiff, stiff_session) = pull_apart(3.0, 0.3, 10);
     eprintln!("pieces at rest {soft_before:?}; pulled: E x0.3 {soft:?}, E x3 {stiff:?}");
     assert_eq!(soft_before.len(), 1, "one piece at rest: {soft_before:?}");
-    let n = soft_session.positions().len() as f64;
-    let main_share = |pieces: &[usize]| pieces.first().map_or(0.0, |&m| m as f64 / n);
+    let n = soft_session.positions().len();
+    let held: usize = stiff_session.state().grasped_particles.iter().sum();
     assert!(
         soft.len() >= 3 && stiff.len() >= 2,
         "both grips should pull out of the soft object, one at least out of the stiff one: \
          E x0.3 {soft:?}, E x3 {stiff:?}"
     );
+    let main = |pieces: &[usize]| pieces.first().copied().unwrap_or(0);
     assert!(
-        main_share(&stiff) >= 0.85 && main_share(&soft) <= main_share(&stiff),
-        "main piece: E x0.3 {soft:?}, E x3 {stiff:?} ({:?})",
+        main(&stiff) + held >= n && main(&soft) <= main(&stiff),
+        "main piece: E x0.3 {soft:?}, E x3 {stiff:?}, {held} of {n} particles held ({:?})",
         soft_session.state()
     );
 }

@@ -127,11 +127,8 @@ pub fn prepare_scene(
     let model = dir.join("model");
     // A scene made by another version of the truth simulation is made
     // again, and its model fitted again.
-    let current = |truth: &Path| {
-        dm_bundle::read_json::<dm_synth::TruthFile>(truth)
-            .is_ok_and(|t| t.truth_version == dm_synth::TRUTH_VERSION)
-    };
-    if !scene.join("bundle.json").is_file() || !current(&truth) {
+    let current = dm_bundle::read_json::<dm_synth::TruthFile>(&truth).is_ok_and(|t| t.is_current());
+    if !scene.join("bundle.json").is_file() || !current {
         for stale in [&scene, &model] {
             if stale.is_dir() {
                 std::fs::remove_dir_all(stale).map_err(|e| DiagnoseError::Input {

@@ -313,15 +313,11 @@ pub struct RunResult {
     pub eval_seconds: f64,
     pub synth: SynthConfig,
     /// dm-synth's [`TRUTH_VERSION`] of the scene (absent: 1).
-    #[serde(default = "first_truth_version")]
+    #[serde(default = "dm_synth::first_truth_version")]
     pub truth_version: u32,
     pub fit: FitOptions,
     pub camera: usize,
     pub lpips: bool,
-}
-
-fn first_truth_version() -> u32 {
-    1
 }
 
 impl RunResult {
@@ -444,7 +440,7 @@ fn scene_bundle(
     let truth_path = dir.join("truth.json");
     let cached = truth_path.is_file()
         && dm_bundle::read_json::<TruthFile>(&truth_path)
-            .is_ok_and(|t| t.config == scene.config && t.truth_version == TRUTH_VERSION);
+            .is_ok_and(|t| t.config == scene.config && t.is_current());
     if !cached {
         remove_dir_if_present(&dir)?;
         std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, "creating", &e))?;

@@ -19,7 +19,7 @@ pub mod truth;
 pub use actions::Action;
 pub use effects::{EffectName, EffectSpec, draw_hidden_effect};
 pub use shapes::Preset;
-pub use truth::{GroundTruth, TRUTH_VERSION, TruthFile, simulate_truth};
+pub use truth::{GroundTruth, TRUTH_VERSION, TruthFile, first_truth_version, simulate_truth};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

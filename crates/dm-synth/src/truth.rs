@@ -102,8 +102,17 @@ pub struct TruthFile {
     pub config: SynthConfig,
 }
 
-fn first_truth_version() -> u32 {
+/// The version of a record written before versions were recorded (serde's
+/// default for `truth_version` fields).
+pub fn first_truth_version() -> u32 {
     1
+}
+
+impl TruthFile {
+    /// Whether this version of the truth simulation made it.
+    pub fn is_current(&self) -> bool {
+        self.truth_version == TRUTH_VERSION
+    }
 }
 
 fn median(values: &[f64]) -> f64 {

@@ -83,6 +83,14 @@ pub struct ModelOptions {
     #[arg(long, default_value_t = 0.0)]
     #[serde(default)]
     pub hand_smoothing: f64,
+    /// Grasp radius of each hand anchor, metres: the particles within it
+    /// are held (default 0.03, a fingertip pad and its neighbourhood). A
+    /// user who knows the gripper can say so; the gain search can also
+    /// choose it (dm-fit's `--search-grasp-radius`). Models saved before
+    /// the option read as the default.
+    #[arg(long, value_name = "METRES")]
+    #[serde(default)]
+    pub grasp_radius: Option<f64>,
 }
 
 fn default_residual() -> ResidualKind {
@@ -98,6 +106,7 @@ impl Default for ModelOptions {
             patches: 64,
             residual: ResidualKind::Pgnd,
             hand_smoothing: 0.0,
+            grasp_radius: None,
         }
     }
 }
@@ -105,6 +114,10 @@ impl Default for ModelOptions {
 /// Beyond a second at 30 fps the kernel would flatten the hands' motion
 /// itself.
 const MAX_HAND_SMOOTHING_FRAMES: f64 = 30.0;
+/// A grasp radius outside these holds no particle of a typical bundle or
+/// holds a whole object (metres).
+const MIN_GRASP_RADIUS_M: f64 = 0.001;
+const MAX_GRASP_RADIUS_M: f64 = 0.2;
 
 /// A world model ready to roll out.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -176,6 +189,16 @@ impl WorldModel {
                 problem: format!(
                     "σ must be between 0 and {MAX_HAND_SMOOTHING_FRAMES} frames, got {}",
                     options.hand_smoothing
+                ),
+            });
+        }
+        if let Some(r) = options.grasp_radius
+            && !(r.is_finite() && (MIN_GRASP_RADIUS_M..=MAX_GRASP_RADIUS_M).contains(&r))
+        {
+            return Err(ModelError::InvalidOption {
+                option: "--grasp-radius".into(),
+                problem: format!(
+                    "must be between {MIN_GRASP_RADIUS_M} and {MAX_GRASP_RADIUS_M} m, got {r}"
                 ),
             });
         }
@@ -254,6 +277,9 @@ impl WorldModel {
                 ActuatorChoice::Single => ActuatorMode::Single,
                 ActuatorChoice::Rigid => ActuatorMode::Rigid,
             },
+            grasp_radius: options
+                .grasp_radius
+                .unwrap_or(ActuatorConfig::default().grasp_radius),
             ..ActuatorConfig::default()
         };
         let residual = ResidualState::fresh(

@@ -1,6 +1,8 @@
-//! Issue 3: `--hand-smoothing` drives the actuators by a smoothed hand
-//! track. A synthetic scene's recorded hands carry 3 mm jitter and 10 %
-//! dropped frames; the truth file keeps the scripted hands.
+//! How the recorded hands drive the model. Issue 3: `--hand-smoothing`
+//! drives the actuators by a smoothed hand track (a synthetic scene's
+//! recorded hands carry 3 mm jitter and 10 % dropped frames; the truth
+//! file keeps the scripted hands). Issue 6: `--grasp-radius` sets how wide
+//! each anchor grips.
 
 use dm_bundle::Bundle;
 use dm_model::{ModelError, ModelOptions, ResidualKind, WorldModel};
@@ -76,5 +78,29 @@ fn issue3_bad_hand_smoothing_is_refused_naming_the_flag() {
     for sigma in [-1.0, f64::NAN, 1e3] {
         let error = model(&bundle, sigma).expect_err("refused").to_string();
         assert!(error.contains("--hand-smoothing"), "{error}");
+    }
+}
+
+#[test]
+fn issue6_grasp_radius_sets_the_grip_and_bad_values_are_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, _) = scene(dir.path());
+    let with_radius = |grasp_radius| {
+        WorldModel::from_bundle(
+            &bundle,
+            &ModelOptions {
+                residual: ResidualKind::None,
+                grasp_radius,
+                ..ModelOptions::default()
+            },
+        )
+    };
+    let default = with_radius(None).expect("default grip");
+    assert_eq!(default.actuator.grasp_radius, 0.03);
+    let narrow = with_radius(Some(0.014)).expect("narrow grip");
+    assert_eq!(narrow.actuator.grasp_radius, 0.014);
+    for bad in [0.0, -0.01, f64::NAN, 5.0] {
+        let error = with_radius(Some(bad)).expect_err("refused").to_string();
+        assert!(error.contains("--grasp-radius"), "{error}");
     }
 }

@@ -2,22 +2,17 @@
 //! (issue 6): the scene's base fit repeated with the hidden effect's true
 //! term in place from the start (`dm_diagnose::oracle`).
 //!
-//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--frames N] [--quick-fit]
+//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [OPTIONS]
 //!
 //! For each hidden-effect draw SEED, OUT_DIR/hiddenSEED is the directory
 //! `diagnose_eval` uses: its scene and base fit are reused (or made, with
 //! the same fit options), and the oracle fit goes to
 //! OUT_DIR/hiddenSEED/oracle. One line per scene is printed and appended
-//! to OUT_DIR/oracle.jsonl. With `--frozen` the effect is held at the
-//! truth instead of learnt from it (OUT_DIR/hiddenSEED/oracle_frozen,
-//! OUT_DIR/oracle_frozen.jsonl). With `--effect NAME:MAG` each draw's
-//! preset and action are kept but NAME is hidden at MAG instead of the
-//! drawn effect (OUT_DIR/hiddenSEED-NAME-MAG): a magnitude sweep. With
-//! `--frames N` the scene is filmed for N frames instead of the
-//! evaluation's 36 (the hands' motion is stretched over the clip; the
-//! last 30 % stay held out; directory suffix `-fN`): does a longer clip
-//! let the true effect show?
+//! to OUT_DIR/oracle.jsonl. The options (`--help`) vary one thing at a
+//! time, each in a directory of its own: the effect held at the truth, a
+//! magnitude sweep, a longer clip, a finer model grid, a narrower grip.
 
+use clap::Parser;
 use dm_diagnose::evaluation::{
     evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
     scene_config_with_effect,
@@ -27,56 +22,80 @@ use dm_synth::EffectSpec;
 use std::io::Write;
 use std::path::PathBuf;
 
+#[derive(Parser)]
+struct Args {
+    /// The evaluation's directory (`diagnose_eval`'s OUT_DIR).
+    out: PathBuf,
+    /// Hidden-effect draws.
+    #[arg(required = true)]
+    seeds: Vec<u64>,
+    /// Hold the effect at the truth instead of learning it from there
+    /// (OUT_DIR/hiddenSEED/oracle_frozen, OUT_DIR/oracle_frozen.jsonl).
+    #[arg(long)]
+    frozen: bool,
+    /// Keep each draw's preset and action but hide NAME at MAG instead of
+    /// the drawn effect (directory hiddenSEED-NAME-MAG).
+    #[arg(long, value_name = "NAME:MAG")]
+    effect: Option<EffectSpec>,
+    /// Film N frames instead of the evaluation's 36, the hands' motion
+    /// stretched over the clip; the last 30 % stay held out (suffix -fN).
+    #[arg(long, value_name = "N")]
+    frames: Option<usize>,
+    /// Fit base and oracle on a model grid of N cells per axis instead of
+    /// the evaluation's 32 (suffix -gN): does a grid as fine as the
+    /// truth's let the true effect show?
+    #[arg(long, value_name = "N")]
+    grid: Option<usize>,
+    /// Fit base and oracle with this grasp radius, metres, instead of the
+    /// model's default 0.03 (suffix -rMM, in mm): the truth grips with
+    /// 0.014 m. Does the grip's width hide the effect?
+    #[arg(long, value_name = "METRES")]
+    grasp_radius: Option<f64>,
+    /// The 3 + 1 steps of sessions one to fourteen.
+    #[arg(long)]
+    quick_fit: bool,
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let fit = if args.iter().any(|a| a == "--quick-fit") {
+    let args = Args::parse();
+    let mut fit = if args.quick_fit {
         quick_fit_options()
     } else {
         evaluation_fit_options()
     };
-    let frozen = args.iter().any(|a| a == "--frozen");
-    let effect: Option<EffectSpec> = match args.iter().position(|a| a == "--effect") {
-        Some(i) => {
-            let spec = args.get(i + 1).ok_or("--effect needs NAME:MAG")?.clone();
-            args.drain(i..=i + 1);
-            Some(spec.parse()?)
-        }
-        None => None,
-    };
-    let frames: Option<usize> = match args.iter().position(|a| a == "--frames") {
-        Some(i) => {
-            let n = args.get(i + 1).ok_or("--frames needs N")?.parse()?;
-            args.drain(i..=i + 1);
-            Some(n)
-        }
-        None => None,
-    };
-    let name = if frozen { "oracle_frozen" } else { "oracle" };
-    args.retain(|a| a != "--quick-fit" && a != "--frozen");
-    let usage = "usage: oracle_gain OUT_DIR SEED [SEED ...] [--frozen] [--effect NAME:MAG] [--frames N] [--quick-fit]";
-    let out = PathBuf::from(args.first().ok_or(usage)?);
-    let seeds: Vec<u64> = args[1..]
-        .iter()
-        .map(|s| s.parse())
-        .collect::<Result<_, _>>()?;
-    if seeds.is_empty() {
-        return Err(usage.into());
+    let mut suffix = String::new();
+    if let Some(n) = args.frames {
+        suffix.push_str(&format!("-f{n}"));
     }
-    for seed in seeds {
-        let (mut config, mut dir) = match effect {
+    if let Some(n) = args.grid {
+        fit.model.grid = n;
+        suffix.push_str(&format!("-g{n}"));
+    }
+    if let Some(r) = args.grasp_radius {
+        fit.model.grasp_radius = Some(r);
+        suffix.push_str(&format!("-r{}", 1e3 * r));
+    }
+    let name = if args.frozen {
+        "oracle_frozen"
+    } else {
+        "oracle"
+    };
+    for seed in args.seeds {
+        let (mut config, mut dir) = match args.effect {
             Some(e) => (
                 scene_config_with_effect(seed, e),
-                out.join(format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude)),
+                args.out
+                    .join(format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude)),
             ),
             None => (
                 scene_config(seed, false).0,
-                out.join(format!("hidden{seed}")),
+                args.out.join(format!("hidden{seed}")),
             ),
         };
-        if let Some(n) = frames {
+        if let Some(n) = args.frames {
             config.frames = n;
-            dir.as_mut_os_string().push(format!("-f{n}"));
         }
+        dir.as_mut_os_string().push(&suffix);
         let effect = config.effect;
         let start = std::time::Instant::now();
         prepare_scene(&config, &dir, &fit)?;
@@ -85,10 +104,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             &dir.join("scene.truth.json"),
             &dir.join("model"),
             &dir.join(name),
-            frozen,
+            args.frozen,
         )?;
         println!(
-            "seed {seed}: {} {}{} → {name} score {:.3} (train {:+.1} %, held-out {:+.1} %), test track {:.2} → {:.2} mm, {:.0} s",
+            "seed {seed}{suffix}: {} {}{} → {name} score {:.3} (train {:+.1} %, held-out {:+.1} %), test track {:.2} → {:.2} mm, {:.0} s",
             config.preset.name(),
             r.effect,
             effect
@@ -103,12 +122,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         let mut line = serde_json::to_value(&r)?;
         line["seed"] = seed.into();
+        line["variant"] = suffix.clone().into();
         line["preset"] = config.preset.name().into();
         line["magnitude"] = effect.map(|e| e.magnitude).into();
         let mut f = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
-            .open(out.join(format!("{name}.jsonl")))?;
+            .open(args.out.join(format!("{name}.jsonl")))?;
         writeln!(f, "{line}")?;
     }
     Ok(())

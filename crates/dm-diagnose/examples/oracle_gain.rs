@@ -10,7 +10,8 @@
 //! OUT_DIR/hiddenSEED/oracle. One line per scene is printed and appended
 //! to OUT_DIR/oracle.jsonl. The options (`--help`) vary one thing at a
 //! time, each in a directory of its own: the effect held at the truth, a
-//! magnitude sweep, a longer clip, a finer model grid, a narrower grip.
+//! magnitude sweep, a longer clip, a finer model grid, a narrower grip,
+//! exact tracks or hands, more particles.
 
 use clap::Parser;
 use dm_diagnose::evaluation::{
@@ -51,6 +52,20 @@ struct Args {
     /// 0.014 m. Does the grip's width hide the effect?
     #[arg(long, value_name = "METRES")]
     grasp_radius: Option<f64>,
+    /// Film the scene with the truth as its object tracks: no tracker
+    /// noise, bias or dropout (suffix -x). Does the tracker's noise hide
+    /// the effect?
+    #[arg(long)]
+    exact_tracks: bool,
+    /// Film the scene with the scripted hands as its hand tracks: no
+    /// jitter or dropout (suffix -h). Does the noisy drive hide the effect?
+    #[arg(long)]
+    exact_hands: bool,
+    /// Write N first-frame particles to the bundle instead of the
+    /// evaluation's 1000 (suffix -pN): does the model's sparser particle
+    /// set hide the effect?
+    #[arg(long, value_name = "N")]
+    bundle_particles: Option<usize>,
     /// The 3 + 1 steps of sessions one to fourteen.
     #[arg(long)]
     quick_fit: bool,
@@ -75,6 +90,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         fit.model.grasp_radius = Some(r);
         suffix.push_str(&format!("-r{}", 1e3 * r));
     }
+    if args.exact_tracks {
+        suffix.push_str("-x");
+    }
+    if args.exact_hands {
+        suffix.push_str("-h");
+    }
+    if let Some(n) = args.bundle_particles {
+        suffix.push_str(&format!("-p{n}"));
+    }
     let name = if args.frozen {
         "oracle_frozen"
     } else {
@@ -94,6 +118,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         if let Some(n) = args.frames {
             config.frames = n;
+        }
+        config.exact_tracks = args.exact_tracks;
+        config.exact_hands = args.exact_hands;
+        if let Some(n) = args.bundle_particles {
+            config.bundle_particles = n;
         }
         dir.as_mut_os_string().push(&suffix);
         let effect = config.effect;

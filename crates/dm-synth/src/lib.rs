@@ -87,6 +87,12 @@ pub struct SynthConfig {
     #[arg(long)]
     #[serde(default)]
     pub exact_tracks: bool,
+    /// Write the scripted hands as the bundle's hand tracks (no tracker
+    /// jitter or dropout): a reference for how much a noisy hand track
+    /// costs the model that it drives.
+    #[arg(long)]
+    #[serde(default)]
+    pub exact_hands: bool,
 }
 
 impl SynthConfig {
@@ -106,6 +112,7 @@ impl SynthConfig {
             tracks: 400,
             bundle_particles: 8_000,
             exact_tracks: false,
+            exact_hands: false,
         }
     }
 

@@ -325,6 +325,7 @@ pub fn write_bundle(
         &track_positions,
         &visible_any,
         &noise,
+        config.exact_hands,
         &mut rng,
     ))?;
     writer.write_particles(&first_frame_particles(config, truth, &noise, &mut rng))?;
@@ -334,12 +335,15 @@ pub fn write_bundle(
 
 /// Noisy object tracks with visibility (seen by a camera and not dropped)
 /// and motion validity (visible now and in the previous frame). Where a
-/// point is not visible the last observation is held.
+/// point is not visible the last observation is held. With `exact_hands`
+/// the hand tracks are the recorded anchors themselves, every frame seen;
+/// the noise is still drawn so the rest of the scene stays the same.
 fn observed_tracks(
     truth: &GroundTruth,
     track_positions: &[Vec<[f64; 3]>],
     visible_any: &Array2<bool>,
     noise: &SensorNoise,
+    exact_hands: bool,
     rng: &mut ChaCha8Rng,
 ) -> Tracks {
     let frames = truth.frames.len();
@@ -376,13 +380,17 @@ fn observed_tracks(
         for j in 0..m {
             let seen = t == 0 || rng.random::<f64>() >= noise.hand_dropout;
             for a in 0..3 {
+                let exact = truth.recorded_anchors[t][j][a];
                 hand_points[[t, j, a]] = if seen {
-                    (truth.recorded_anchors[t][j][a] + noise.hand_sigma * unit.sample(rng)) as f32
+                    let measured = exact + noise.hand_sigma * unit.sample(rng);
+                    (if exact_hands { exact } else { measured }) as f32
+                } else if exact_hands {
+                    exact as f32
                 } else {
                     hand_points[[t - 1, j, a]]
                 };
             }
-            hand_visibility[[t, j]] = seen;
+            hand_visibility[[t, j]] = seen || exact_hands;
         }
     }
     Tracks {

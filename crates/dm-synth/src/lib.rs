@@ -87,9 +87,10 @@ pub struct SynthConfig {
     #[arg(long)]
     #[serde(default)]
     pub exact_tracks: bool,
-    /// Write the scripted hands as the bundle's hand tracks (no tracker
-    /// jitter or dropout): a reference for how much a noisy hand track
-    /// costs the model that it drives.
+    /// Write the hands as the tracker would see them without error (the
+    /// scripted anchors; for `actuator_lag`, the lagged ones) as the
+    /// bundle's hand tracks, every frame seen: a reference for how much a
+    /// noisy hand track costs the model that it drives.
     #[arg(long)]
     #[serde(default)]
     pub exact_hands: bool,

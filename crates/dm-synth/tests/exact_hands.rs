@@ -18,7 +18,7 @@ fn scene(dir: &std::path::Path, exact_hands: bool) -> (Bundle, dm_synth::TruthFi
         &mut |_, _, _| {},
     )
     .expect("scene");
-    (Bundle::open(&dir.join(name)).expect("bundle"), truth)
+    (Bundle::open(dir.join(name)).expect("bundle"), truth)
 }
 
 #[test]

@@ -116,7 +116,8 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 
 /// Synthesises `config`'s scene under `dir` (`scene/`, `scene.truth.json`)
 /// and fits it with `fit` (`model/`), each unless `dir` already holds it
-/// (made by this version of the truth simulation, fitted with `fit`).
+/// (made by this version of the truth simulation from `config`, fitted
+/// with `fit`).
 pub fn prepare_scene(
     config: &SynthConfig,
     dir: &Path,
@@ -125,9 +126,11 @@ pub fn prepare_scene(
     let scene = dir.join("scene");
     let truth = dir.join("scene.truth.json");
     let model = dir.join("model");
-    // A scene made by another version of the truth simulation is made
-    // again, and its model fitted again.
-    let current = dm_bundle::read_json::<dm_synth::TruthFile>(&truth).is_ok_and(|t| t.is_current());
+    // A scene made by another version of the truth simulation, or with
+    // another configuration, is made again, and its model fitted again
+    // (as dm-eval's suite cache does).
+    let current = dm_bundle::read_json::<dm_synth::TruthFile>(&truth)
+        .is_ok_and(|t| t.is_current() && t.config == *config);
     if !scene.join("bundle.json").is_file() || !current {
         for stale in [&scene, &model] {
             if stale.is_dir() {

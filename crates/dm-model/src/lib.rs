@@ -271,16 +271,15 @@ impl WorldModel {
         let patches = MaterialPatches::build(&particles, options.patches);
         let (e0, nu0) = default_material(meta.category);
         let params = PatchParams::uniform(patches.patch_count(), &bounds, e0, nu0, [0.0; 3]);
+        let default_grip = ActuatorConfig::default();
         let actuator = ActuatorConfig {
             mode: match options.actuators {
                 ActuatorChoice::Dca => ActuatorMode::Distributed,
                 ActuatorChoice::Single => ActuatorMode::Single,
                 ActuatorChoice::Rigid => ActuatorMode::Rigid,
             },
-            grasp_radius: options
-                .grasp_radius
-                .unwrap_or(ActuatorConfig::default().grasp_radius),
-            ..ActuatorConfig::default()
+            grasp_radius: options.grasp_radius.unwrap_or(default_grip.grasp_radius),
+            ..default_grip
         };
         let residual = ResidualState::fresh(
             options.residual,

@@ -381,14 +381,12 @@ fn observed_tracks(
             let seen = t == 0 || rng.random::<f64>() >= noise.hand_dropout;
             for a in 0..3 {
                 let exact = truth.recorded_anchors[t][j][a];
-                hand_points[[t, j, a]] = if seen {
-                    let measured = exact + noise.hand_sigma * unit.sample(rng);
-                    (if exact_hands { exact } else { measured }) as f32
-                } else if exact_hands {
-                    exact as f32
+                let observed = if seen {
+                    (exact + noise.hand_sigma * unit.sample(rng)) as f32
                 } else {
                     hand_points[[t - 1, j, a]]
                 };
+                hand_points[[t, j, a]] = if exact_hands { exact as f32 } else { observed };
             }
             hand_visibility[[t, j]] = seen || exact_hands;
         }

@@ -6,7 +6,7 @@
 //! is `cargo run --release -p dm-diagnose --example diagnose_eval`.
 
 use dm_diagnose::DiagnoseOptions;
-use dm_diagnose::evaluation::{quick_fit_options, run_scene};
+use dm_diagnose::evaluation::{SceneVariant, quick_fit_options, run_scene};
 
 /// The draw the test hides (an evaluation seed whose effect the
 /// evaluation in docs/RESULTS.md named correctly).
@@ -26,6 +26,7 @@ fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
     let (hidden, d) = run_scene(
         HIDDEN_SEED,
         false,
+        &SceneVariant::default(),
         &dir.path().join("hidden"),
         &fit,
         &options,
@@ -71,8 +72,15 @@ fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
             .all(|r| matches!(r["track_per_frame"].as_array().map(Vec::len), Some(n) if n == frames || n == 0))
     );
 
-    let (null, d) =
-        run_scene(NULL_SEED, true, &dir.path().join("null"), &fit, &options).expect("null scene");
+    let (null, d) = run_scene(
+        NULL_SEED,
+        true,
+        &SceneVariant::default(),
+        &dir.path().join("null"),
+        &fit,
+        &options,
+    )
+    .expect("null scene");
     assert_eq!(
         null.cause, "none",
         "null scene named {}: {:?}",

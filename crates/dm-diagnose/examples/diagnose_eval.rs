@@ -1,6 +1,6 @@
 //! The full hidden-effect evaluation of issue 6:
 //!
-//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit]
+//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit] [VARIANT OPTIONS]
 //!
 //! synthesises HIDDEN scenes (default 16) with a seeded random effect,
 //! preset and magnitude and NULL scenes (default 4) without, fits and
@@ -12,39 +12,78 @@
 //! OUT_DIR. Scenes are fitted with `evaluation_fit_options` (6 + 6
 //! material steps), or with `--quick-fit` the 3 + 1 steps of sessions
 //! one to fourteen (a scene's model fitted with the other options is
-//! fitted again).
+//! fitted again). The variant options (`--help`; `oracle_gain` takes the
+//! same) change one scene or fit setting, the scene directories named
+//! with its suffix (e.g. `hidden1023-p3000`).
 
+use clap::Parser;
 use dm_diagnose::DiagnoseOptions;
 use dm_diagnose::evaluation::{
-    SceneResult, confusion_markdown, evaluation_fit_options, quick_fit_options, run_scene,
+    SceneResult, SceneVariant, confusion_markdown, evaluation_fit_options, quick_fit_options,
+    run_scene,
 };
 use std::io::Write;
 use std::path::PathBuf;
 
+/// Synthesises, fits and diagnoses the hidden-effect and null scenes of
+/// issue 6's evaluation and tabulates the named causes.
+#[derive(Parser)]
+struct Args {
+    /// Where the scenes, fits, diagnoses, results.jsonl and confusion.md go.
+    out: PathBuf,
+    /// Hidden-effect scenes, seeds FIRST_SEED, FIRST_SEED + 1, ...
+    #[arg(default_value_t = 16)]
+    hidden: u64,
+    /// Null scenes, seeds FIRST_SEED + 500, ...
+    #[arg(default_value_t = 4)]
+    null: u64,
+    #[arg(default_value_t = 1000)]
+    first_seed: u64,
+    /// Take every SHARDS-th scene from the SHARD-th (e.g. 0/2), so several
+    /// processes can share one OUT_DIR.
+    #[arg(value_name = "SHARD/SHARDS", value_parser = parse_shard)]
+    shard: Option<(usize, usize)>,
+    /// Score the candidates by fits from the start.
+    #[arg(long)]
+    fit_candidates: bool,
+    /// The 3 + 1 steps of sessions one to fourteen.
+    #[arg(long)]
+    quick_fit: bool,
+    // A scene or fit setting changed (scene directories get its suffix).
+    #[command(flatten)]
+    variant: SceneVariant,
+}
+
+fn parse_shard(text: &str) -> Result<(usize, usize), String> {
+    let (shard, shards) = text.split_once('/').ok_or("SHARD/SHARDS, e.g. 0/2")?;
+    let shard: usize = shard.parse().map_err(|e| format!("SHARD `{shard}`: {e}"))?;
+    let shards: usize = shards
+        .parse()
+        .map_err(|e| format!("SHARDS `{shards}`: {e}"))?;
+    if shard >= shards {
+        return Err(format!("SHARD {shard} must be below SHARDS {shards}"));
+    }
+    Ok((shard, shards))
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    // `--fit-candidates` anywhere: score candidates by fits from the start.
-    let fit_candidates = args.iter().any(|a| a == "--fit-candidates");
-    let fit = if args.iter().any(|a| a == "--quick-fit") {
+    let Args {
+        out,
+        hidden,
+        null,
+        first_seed: first,
+        shard,
+        fit_candidates,
+        quick_fit,
+        variant,
+    } = Args::parse();
+    let fit = if quick_fit {
         quick_fit_options()
     } else {
         evaluation_fit_options()
     };
-    args.retain(|a| a != "--fit-candidates" && a != "--quick-fit");
-    let out = PathBuf::from(
-        args.first()
-            .ok_or("usage: diagnose_eval OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit]")?,
-    );
-    let hidden: u64 = args.get(1).map_or(Ok(16), |s| s.parse())?;
-    let null: u64 = args.get(2).map_or(Ok(4), |s| s.parse())?;
-    let first: u64 = args.get(3).map_or(Ok(1000), |s| s.parse())?;
-    let (shard, shards): (usize, usize) = match args.get(4) {
-        None => (0, 1),
-        Some(s) => {
-            let (a, b) = s.split_once('/').ok_or("SHARD/SHARDS, e.g. 0/2")?;
-            (a.parse()?, b.parse::<usize>()?.max(1))
-        }
-    };
+    let (shard, shards) = shard.unwrap_or((0, 1));
+    let suffix = variant.suffix();
     std::fs::create_dir_all(&out)?;
     let options = DiagnoseOptions {
         fit_candidates,
@@ -69,12 +108,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     for (seed, is_null) in jobs.into_iter().skip(shard).step_by(shards) {
         let dir = out.join(format!(
-            "{}{}",
+            "{}{seed}{suffix}",
             if is_null { "null" } else { "hidden" },
-            seed
         ));
         let start = std::time::Instant::now();
-        match run_scene(seed, is_null, &dir, &fit, &options) {
+        match run_scene(seed, is_null, &variant, &dir, &fit, &options) {
             Ok((r, _)) => {
                 println!(
                     "seed {seed}: {} {} (hidden {}{}) → {} (conf {:.2}, best {:.3}), test track {:.2} → {:.2} mm, {:.0} s",

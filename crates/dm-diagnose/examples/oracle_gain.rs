@@ -15,7 +15,7 @@
 
 use clap::Parser;
 use dm_diagnose::evaluation::{
-    evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
+    SceneVariant, evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
     scene_config_with_effect,
 };
 use dm_diagnose::oracle::oracle_fit;
@@ -23,6 +23,8 @@ use dm_synth::EffectSpec;
 use std::io::Write;
 use std::path::PathBuf;
 
+/// How much the right candidate can show in each evaluation scene: its
+/// base fit repeated with the hidden effect's true term in place.
 #[derive(Parser)]
 struct Args {
     /// The evaluation's directory (`diagnose_eval`'s OUT_DIR).
@@ -38,34 +40,9 @@ struct Args {
     /// the drawn effect (directory hiddenSEED-NAME-MAG).
     #[arg(long, value_name = "NAME:MAG")]
     effect: Option<EffectSpec>,
-    /// Film N frames instead of the evaluation's 36, the hands' motion
-    /// stretched over the clip; the last 30 % stay held out (suffix -fN).
-    #[arg(long, value_name = "N")]
-    frames: Option<usize>,
-    /// Fit base and oracle on a model grid of N cells per axis instead of
-    /// the evaluation's 32 (suffix -gN): does a grid as fine as the
-    /// truth's let the true effect show?
-    #[arg(long, value_name = "N")]
-    grid: Option<usize>,
-    /// Fit base and oracle with this grasp radius, metres, instead of the
-    /// model's default 0.03 (suffix -rMM, in mm): the truth grips with
-    /// 0.014 m. Does the grip's width hide the effect?
-    #[arg(long, value_name = "METRES")]
-    grasp_radius: Option<f64>,
-    /// Film the scene with the truth as its object tracks: no tracker
-    /// noise, bias or dropout (suffix -x). Does the tracker's noise hide
-    /// the effect?
-    #[arg(long)]
-    exact_tracks: bool,
-    /// Film the scene with the scripted hands as its hand tracks: no
-    /// jitter or dropout (suffix -h). Does the noisy drive hide the effect?
-    #[arg(long)]
-    exact_hands: bool,
-    /// Write N first-frame particles to the bundle instead of the
-    /// evaluation's 1000 (suffix -pN): does the model's sparser particle
-    /// set hide the effect?
-    #[arg(long, value_name = "N")]
-    bundle_particles: Option<usize>,
+    // The scene or fit settings changed (the evaluation's by default).
+    #[command(flatten)]
+    variant: SceneVariant,
     /// The 3 + 1 steps of sessions one to fourteen.
     #[arg(long)]
     quick_fit: bool,
@@ -73,32 +50,12 @@ struct Args {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
-    let mut fit = if args.quick_fit {
+    let fit = if args.quick_fit {
         quick_fit_options()
     } else {
         evaluation_fit_options()
     };
-    let mut suffix = String::new();
-    if let Some(n) = args.frames {
-        suffix.push_str(&format!("-f{n}"));
-    }
-    if let Some(n) = args.grid {
-        fit.model.grid = n;
-        suffix.push_str(&format!("-g{n}"));
-    }
-    if let Some(r) = args.grasp_radius {
-        fit.model.grasp_radius = Some(r);
-        suffix.push_str(&format!("-r{}", 1e3 * r));
-    }
-    if args.exact_tracks {
-        suffix.push_str("-x");
-    }
-    if args.exact_hands {
-        suffix.push_str("-h");
-    }
-    if let Some(n) = args.bundle_particles {
-        suffix.push_str(&format!("-p{n}"));
-    }
+    let suffix = args.variant.suffix();
     let name = if args.frozen {
         "oracle_frozen"
     } else {
@@ -116,14 +73,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 args.out.join(format!("hidden{seed}")),
             ),
         };
-        if let Some(n) = args.frames {
-            config.frames = n;
-        }
-        config.exact_tracks = args.exact_tracks;
-        config.exact_hands = args.exact_hands;
-        if let Some(n) = args.bundle_particles {
-            config.bundle_particles = n;
-        }
+        let mut fit = fit.clone();
+        args.variant.apply(&mut config, &mut fit);
         dir.as_mut_os_string().push(&suffix);
         let effect = config.effect;
         let start = std::time::Instant::now();

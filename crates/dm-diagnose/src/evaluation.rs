@@ -114,6 +114,88 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
     config
 }
 
+/// One setting of the evaluation changed, to ask what hides an effect: a
+/// truth–model difference removed (the grid, the grip, the particle set,
+/// the sensors' noise) or a longer clip. The default is the evaluation
+/// itself; each changed setting adds to [`SceneVariant::suffix`], so a
+/// variant's scenes live in directories of their own.
+#[derive(clap::Args, Clone, Debug, Default, PartialEq)]
+pub struct SceneVariant {
+    /// Film N frames instead of the evaluation's 36, the hands' motion
+    /// stretched over the clip; the last 30 % stay held out (suffix -fN).
+    #[arg(long, value_name = "N")]
+    pub frames: Option<usize>,
+    /// Fit on a model grid of N cells per axis instead of the
+    /// evaluation's 32 (suffix -gN): does a grid as fine as the truth's
+    /// let the true effect show?
+    #[arg(long, value_name = "N")]
+    pub grid: Option<usize>,
+    /// Fit with this grasp radius, metres, instead of the model's default
+    /// 0.03 (suffix -rMM, in mm): the truth grips with 0.014 m. Does the
+    /// grip's width hide the effect?
+    #[arg(long, value_name = "METRES")]
+    pub grasp_radius: Option<f64>,
+    /// Film the scene with the truth as its object tracks: no tracker
+    /// noise, bias or dropout (suffix -x). Does the tracker's noise hide
+    /// the effect?
+    #[arg(long)]
+    pub exact_tracks: bool,
+    /// Film the scene with the scripted hands as its hand tracks: no
+    /// jitter or dropout (suffix -h). Does the noisy drive hide the effect?
+    #[arg(long)]
+    pub exact_hands: bool,
+    /// Write N first-frame particles to the bundle instead of the
+    /// evaluation's 1000 (suffix -pN): does the model's sparser particle
+    /// set hide the effect?
+    #[arg(long, value_name = "N")]
+    pub bundle_particles: Option<usize>,
+}
+
+impl SceneVariant {
+    /// The directory suffix naming every changed setting, in a fixed order
+    /// (empty for the evaluation itself).
+    pub fn suffix(&self) -> String {
+        let mut suffix = String::new();
+        if let Some(n) = self.frames {
+            suffix.push_str(&format!("-f{n}"));
+        }
+        if let Some(n) = self.grid {
+            suffix.push_str(&format!("-g{n}"));
+        }
+        if let Some(r) = self.grasp_radius {
+            suffix.push_str(&format!("-r{}", 1e3 * r));
+        }
+        if self.exact_tracks {
+            suffix.push_str("-x");
+        }
+        if self.exact_hands {
+            suffix.push_str("-h");
+        }
+        if let Some(n) = self.bundle_particles {
+            suffix.push_str(&format!("-p{n}"));
+        }
+        suffix
+    }
+
+    /// Changes the scene and the fit as the variant says.
+    pub fn apply(&self, config: &mut SynthConfig, fit: &mut FitOptions) {
+        if let Some(n) = self.frames {
+            config.frames = n;
+        }
+        if let Some(n) = self.grid {
+            fit.model.grid = n;
+        }
+        if let Some(r) = self.grasp_radius {
+            fit.model.grasp_radius = Some(r);
+        }
+        config.exact_tracks = self.exact_tracks;
+        config.exact_hands = self.exact_hands;
+        if let Some(n) = self.bundle_particles {
+            config.bundle_particles = n;
+        }
+    }
+}
+
 /// Synthesises `config`'s scene under `dir` (`scene/`, `scene.truth.json`)
 /// and fits it with `fit` (`model/`), each unless `dir` already holds it
 /// (made by this version of the truth simulation from `config`, fitted
@@ -158,17 +240,20 @@ pub fn prepare_scene(
     Ok(())
 }
 
-/// Synthesises, fits (with `fit`, unless `dir` already holds a model fitted
-/// with it) and diagnoses one scene under `dir`.
+/// Synthesises, fits (with `fit` changed by `variant`, unless `dir` already
+/// holds a model fitted with it) and diagnoses one scene under `dir`.
 pub fn run_scene(
     seed: u64,
     null: bool,
+    variant: &SceneVariant,
     dir: &Path,
     fit: &FitOptions,
     options: &DiagnoseOptions,
 ) -> Result<(SceneResult, Diagnosis), DiagnoseError> {
-    let (config, effect) = scene_config(seed, null);
-    prepare_scene(&config, dir, fit)?;
+    let (mut config, effect) = scene_config(seed, null);
+    let mut fit = fit.clone();
+    variant.apply(&mut config, &mut fit);
+    prepare_scene(&config, dir, &fit)?;
     let d = diagnose(
         &dir.join("model"),
         &dir.join("scene"),
@@ -271,5 +356,37 @@ mod tests {
             assert_eq!(scene_config(seed, true).0.action, None);
         }
         assert!(friction_draws > 10, "{friction_draws} friction draws");
+    }
+
+    #[test]
+    fn issue6_scene_variant_names_and_applies_each_setting() {
+        let (base_config, _) = scene_config(1031, false);
+        let base_fit = evaluation_fit_options();
+        // The default variant is the evaluation itself.
+        let (mut config, mut fit) = (base_config.clone(), base_fit.clone());
+        SceneVariant::default().apply(&mut config, &mut fit);
+        assert_eq!(SceneVariant::default().suffix(), "");
+        assert_eq!((&config, &fit), (&base_config, &base_fit));
+
+        let variant = SceneVariant {
+            frames: Some(72),
+            grid: Some(48),
+            grasp_radius: Some(0.014),
+            exact_tracks: true,
+            exact_hands: true,
+            bundle_particles: Some(3000),
+        };
+        // Directories of earlier runs keep their names: the order is fixed.
+        assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000");
+        variant.apply(&mut config, &mut fit);
+        assert_eq!(config.frames, 72);
+        assert_eq!(config.bundle_particles, 3000);
+        assert!(config.exact_tracks && config.exact_hands);
+        assert_eq!(fit.model.grid, 48);
+        assert_eq!(fit.model.grasp_radius, Some(0.014));
+        // Nothing else changes: the effect, the preset, the fit schedule.
+        assert_eq!(config.effect, base_config.effect);
+        assert_eq!(config.preset, base_config.preset);
+        assert_eq!(fit.iters, base_fit.iters);
     }
 }

@@ -1,6 +1,7 @@
 //! A loss curve as a PNG: log-scale loss per iteration, with the stage
 //! boundary marked (dm-view's labelled line chart).
 
+use crate::residual_check::ResidualCheck;
 use dm_view::ViewError;
 use dm_view::chart::{ChartOptions, ChartSeries, ValueScale, line_chart};
 use image::RgbImage;
@@ -11,13 +12,16 @@ use image::RgbImage;
 /// iteration indices), and a dot marks `kept`, the iteration whose
 /// residual network the fit kept (`--residual-keep late-frames`; it may be
 /// one past the last iteration: the network after the last step). The
-/// residual stage and stage 3 change the objective (network regulariser,
-/// + L_rgb), so a step up at their start is not a divergence.
+/// residual stage and stage 3 change the objective (the network's
+/// regulariser, then L_rgb), so a step up at their start is not a
+/// divergence. The title says the residual check's decision
+/// ([`loss_curve_title`]).
 pub fn loss_curve(
     losses: &[f64],
     late_losses: &[f64],
     stage_starts: &[usize],
     kept: Option<(usize, f64)>,
+    check: Option<&ResidualCheck>,
 ) -> Result<RgbImage, ViewError> {
     let kept_marker: Vec<f64> = match kept {
         Some((at, value)) => (0..=at)
@@ -49,10 +53,27 @@ pub fn loss_curve(
         &ChartOptions {
             scale: ValueScale::Log,
             markers: stage_starts.to_vec(),
-            title: "Training loss (dashed: next stage; stage 3 adds L_rgb)".into(),
+            title: loss_curve_title(check),
             x_label: "iteration".into(),
             y_label: "loss (m²)".into(),
             ..ChartOptions::default()
         },
     )
+}
+
+/// The loss curve's title. After a residual check it says whether the
+/// network was kept: a dropped network leaves a curve that looks like
+/// `--residual none`'s (the fit goes on as that fit), and the reader
+/// should not have to open `fit_report.json` to learn why.
+pub fn loss_curve_title(check: Option<&ResidualCheck>) -> String {
+    match check {
+        None => "Training loss (dashed: next stage; stage 3 adds L_rgb)".into(),
+        Some(check) => format!(
+            "Training loss · residual network {} (train gain {:.0} % {} {:.0} %)",
+            if check.kept { "kept" } else { "dropped" },
+            100.0 * check.gain,
+            if check.kept { "≥" } else { "<" },
+            100.0 * check.min_gain
+        ),
+    }
 }

@@ -728,7 +728,13 @@ pub(crate) fn fit_stages(
         .kept_residual
         .as_ref()
         .map(|k| (residual_start + k.step, k.late_loss));
-    let png = crate::plot::loss_curve(&curve, &late, &stage_starts, kept)?;
+    let png = crate::plot::loss_curve(
+        &curve,
+        &late,
+        &stage_starts,
+        kept,
+        state.residual_check.as_ref(),
+    )?;
     write_file_atomic(&out.join("loss_curve.png"), |temp| {
         png.save_with_format(temp, image::ImageFormat::Png)
             .map_err(|e| std::io::Error::other(e.to_string()))

@@ -188,8 +188,9 @@ impl SceneVariant {
         if let Some(r) = self.grasp_radius {
             fit.model.grasp_radius = Some(r);
         }
-        config.exact_tracks = self.exact_tracks;
-        config.exact_hands = self.exact_hands;
+        // Set, never cleared: the default variant leaves the scene as it is.
+        config.exact_tracks |= self.exact_tracks;
+        config.exact_hands |= self.exact_hands;
         if let Some(n) = self.bundle_particles {
             config.bundle_particles = n;
         }

@@ -116,7 +116,7 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 
 /// One setting of the evaluation changed, to ask what hides an effect: a
 /// truth–model difference removed (the grid, the grip, the particle set,
-/// the sensors' noise) or a longer clip. The default is the evaluation
+/// the material field's freedom, the sensors' noise) or a longer clip. The default is the evaluation
 /// itself; each changed setting adds to [`SceneVariant::suffix`], so a
 /// variant's scenes live in directories of their own.
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]
@@ -149,6 +149,11 @@ pub struct SceneVariant {
     /// set hide the effect?
     #[arg(long, value_name = "N")]
     pub bundle_particles: Option<usize>,
+    /// Fit N material patches instead of the model's 64 (suffix -mN;
+    /// 1: one homogeneous material): does the fitted material field
+    /// absorb the effect?
+    #[arg(long, value_name = "N")]
+    pub patches: Option<usize>,
 }
 
 impl SceneVariant {
@@ -174,6 +179,9 @@ impl SceneVariant {
         if let Some(n) = self.bundle_particles {
             suffix.push_str(&format!("-p{n}"));
         }
+        if let Some(n) = self.patches {
+            suffix.push_str(&format!("-m{n}"));
+        }
         suffix
     }
 
@@ -193,6 +201,9 @@ impl SceneVariant {
         config.exact_hands |= self.exact_hands;
         if let Some(n) = self.bundle_particles {
             config.bundle_particles = n;
+        }
+        if let Some(n) = self.patches {
+            fit.model.patches = n;
         }
     }
 }
@@ -376,15 +387,17 @@ mod tests {
             exact_tracks: true,
             exact_hands: true,
             bundle_particles: Some(3000),
+            patches: Some(1),
         };
         // Directories of earlier runs keep their names: the order is fixed.
-        assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000");
+        assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000-m1");
         variant.apply(&mut config, &mut fit);
         assert_eq!(config.frames, 72);
         assert_eq!(config.bundle_particles, 3000);
         assert!(config.exact_tracks && config.exact_hands);
         assert_eq!(fit.model.grid, 48);
         assert_eq!(fit.model.grasp_radius, Some(0.014));
+        assert_eq!(fit.model.patches, 1);
         // Nothing else changes: the effect, the preset, the fit schedule.
         assert_eq!(config.effect, base_config.effect);
         assert_eq!(config.preset, base_config.preset);

@@ -83,7 +83,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         evaluation_fit_options()
     };
     let (shard, shards) = shard.unwrap_or((0, 1));
-    let suffix = variant.suffix();
     std::fs::create_dir_all(&out)?;
     let options = DiagnoseOptions {
         fit_candidates,
@@ -107,10 +106,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         i += 1;
     }
     for (seed, is_null) in jobs.into_iter().skip(shard).step_by(shards) {
-        let dir = out.join(format!(
-            "{}{seed}{suffix}",
-            if is_null { "null" } else { "hidden" },
-        ));
+        let kind = if is_null { "null" } else { "hidden" };
+        let dir = variant.scene_dir(&out, &format!("{kind}{seed}"));
         let start = std::time::Instant::now();
         match run_scene(seed, is_null, &variant, &dir, &fit, &options) {
             Ok((r, _)) => {

@@ -62,20 +62,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "oracle"
     };
     for seed in args.seeds {
-        let (mut config, mut dir) = match args.effect {
+        let (mut config, stem) = match args.effect {
             Some(e) => (
                 scene_config_with_effect(seed, e),
-                args.out
-                    .join(format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude)),
+                format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude),
             ),
-            None => (
-                scene_config(seed, false).0,
-                args.out.join(format!("hidden{seed}")),
-            ),
+            None => (scene_config(seed, false).0, format!("hidden{seed}")),
         };
         let mut fit = fit.clone();
         args.variant.apply(&mut config, &mut fit);
-        dir.as_mut_os_string().push(&suffix);
+        let dir = args.variant.scene_dir(&args.out, &stem);
         let effect = config.effect;
         let start = std::time::Instant::now();
         prepare_scene(&config, &dir, &fit)?;

@@ -9,7 +9,7 @@ use dm_model::{ModelOptions, ResidualKind};
 use dm_synth::{EffectSpec, Preset, SynthConfig, draw_hidden_effect, generate};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The short fit used for evaluation scenes: physics only (the residual
 /// would absorb the very mismatch the diagnosis looks for), 3 + 1 material
@@ -116,9 +116,10 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 
 /// One setting of the evaluation changed, to ask what hides an effect: a
 /// truth–model difference removed (the grid, the grip, the particle set,
-/// the material field's freedom, the sensors' noise) or a longer clip. The default is the evaluation
-/// itself; each changed setting adds to [`SceneVariant::suffix`], so a
-/// variant's scenes live in directories of their own.
+/// the material field's freedom, the sensors' noise) or a longer clip.
+/// The default is the evaluation itself; each changed setting adds to
+/// [`SceneVariant::suffix`], so a variant's scenes live in directories of
+/// their own ([`SceneVariant::scene_dir`]).
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]
 pub struct SceneVariant {
     /// Film N frames instead of the evaluation's 36, the hands' motion
@@ -183,6 +184,13 @@ impl SceneVariant {
             suffix.push_str(&format!("-m{n}"));
         }
         suffix
+    }
+
+    /// The directory of the scene `stem` (`hidden1031`, `null1516`, ...)
+    /// under `out` in this variant: `diagnose_eval` and `oracle_gain` name
+    /// their scenes here alike, so each reuses the other's scenes and fits.
+    pub fn scene_dir(&self, out: &Path, stem: &str) -> PathBuf {
+        out.join(format!("{stem}{}", self.suffix()))
     }
 
     /// Changes the scene and the fit as the variant says.
@@ -391,6 +399,10 @@ mod tests {
         };
         // Directories of earlier runs keep their names: the order is fixed.
         assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000-m1");
+        assert_eq!(
+            variant.scene_dir(Path::new("eval"), "hidden1031"),
+            Path::new("eval/hidden1031-f72-g48-r14-x-h-p3000-m1")
+        );
         variant.apply(&mut config, &mut fit);
         assert_eq!(config.frames, 72);
         assert_eq!(config.bundle_particles, 3000);

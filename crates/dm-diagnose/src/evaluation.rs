@@ -155,6 +155,19 @@ pub struct SceneVariant {
     /// absorb the effect?
     #[arg(long, value_name = "N")]
     pub patches: Option<usize>,
+    /// Fit with N first-stage material steps instead of the evaluation's 6
+    /// (suffix -iN; dm-fit's default is 12): is the base fit too short
+    /// for the effect to show?
+    #[arg(long, value_name = "N")]
+    pub iters: Option<usize>,
+    /// Fit with N second-stage material steps instead of the evaluation's
+    /// 6 (suffix -sN; dm-fit's default is 18).
+    #[arg(long, value_name = "N")]
+    pub stage2_iters: Option<usize>,
+    /// Search the actuator gains with N rollouts instead of the
+    /// evaluation's 4 (suffix -eN; dm-fit's default is 24).
+    #[arg(long, value_name = "N")]
+    pub gain_evals: Option<u64>,
 }
 
 impl SceneVariant {
@@ -182,6 +195,15 @@ impl SceneVariant {
         }
         if let Some(n) = self.patches {
             suffix.push_str(&format!("-m{n}"));
+        }
+        if let Some(n) = self.iters {
+            suffix.push_str(&format!("-i{n}"));
+        }
+        if let Some(n) = self.stage2_iters {
+            suffix.push_str(&format!("-s{n}"));
+        }
+        if let Some(n) = self.gain_evals {
+            suffix.push_str(&format!("-e{n}"));
         }
         suffix
     }
@@ -212,6 +234,15 @@ impl SceneVariant {
         }
         if let Some(n) = self.patches {
             fit.model.patches = n;
+        }
+        if let Some(n) = self.iters {
+            fit.iters = n;
+        }
+        if let Some(n) = self.stage2_iters {
+            fit.stage2_iters = n;
+        }
+        if let Some(n) = self.gain_evals {
+            fit.gain_evals = n;
         }
     }
 }
@@ -396,12 +427,15 @@ mod tests {
             exact_hands: true,
             bundle_particles: Some(3000),
             patches: Some(1),
+            iters: Some(12),
+            stage2_iters: Some(18),
+            gain_evals: Some(24),
         };
         // Directories of earlier runs keep their names: the order is fixed.
-        assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000-m1");
+        assert_eq!(variant.suffix(), "-f72-g48-r14-x-h-p3000-m1-i12-s18-e24");
         assert_eq!(
             variant.scene_dir(Path::new("eval"), "hidden1031"),
-            Path::new("eval/hidden1031-f72-g48-r14-x-h-p3000-m1")
+            Path::new("eval/hidden1031-f72-g48-r14-x-h-p3000-m1-i12-s18-e24")
         );
         variant.apply(&mut config, &mut fit);
         assert_eq!(config.frames, 72);
@@ -410,9 +444,10 @@ mod tests {
         assert_eq!(fit.model.grid, 48);
         assert_eq!(fit.model.grasp_radius, Some(0.014));
         assert_eq!(fit.model.patches, 1);
-        // Nothing else changes: the effect, the preset, the fit schedule.
+        assert_eq!((fit.iters, fit.stage2_iters, fit.gain_evals), (12, 18, 24));
+        // Nothing else changes: the effect, the preset, the fit's rates.
         assert_eq!(config.effect, base_config.effect);
         assert_eq!(config.preset, base_config.preset);
-        assert_eq!(fit.iters, base_fit.iters);
+        assert_eq!((fit.lr, fit.effect_lr), (base_fit.lr, base_fit.effect_lr));
     }
 }

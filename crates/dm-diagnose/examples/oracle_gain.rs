@@ -11,7 +11,8 @@
 //! to OUT_DIR/oracle.jsonl. The options (`--help`) vary one thing at a
 //! time, each in a directory of its own: the effect held at the truth, a
 //! magnitude sweep, a longer clip, a finer model grid, a narrower grip,
-//! exact tracks or hands, more particles, fewer material patches.
+//! exact tracks or hands, more particles, fewer material patches, longer
+//! fit stages.
 
 use clap::Parser;
 use dm_diagnose::evaluation::{

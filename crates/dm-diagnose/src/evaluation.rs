@@ -116,7 +116,8 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 
 /// One setting of the evaluation changed, to ask what hides an effect: a
 /// truth–model difference removed (the grid, the grip, the particle set,
-/// the material field's freedom, the sensors' noise) or a longer clip.
+/// the material field's freedom, the sensors' noise), a longer clip, or
+/// a longer fit.
 /// The default is the evaluation itself; each changed setting adds to
 /// [`SceneVariant::suffix`], so a variant's scenes live in directories of
 /// their own ([`SceneVariant::scene_dir`]).

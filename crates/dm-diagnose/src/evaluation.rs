@@ -117,10 +117,9 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 /// One setting of the evaluation changed, to ask what hides an effect: a
 /// truth–model difference removed (the grid, the grip, the particle set,
 /// the material field's freedom, the sensors' noise), a longer clip, or
-/// a longer fit.
-/// The default is the evaluation itself; each changed setting adds to
-/// [`SceneVariant::suffix`], so a variant's scenes live in directories of
-/// their own ([`SceneVariant::scene_dir`]).
+/// a longer fit. The default is the evaluation itself; each changed
+/// setting adds to [`SceneVariant::suffix`], so a variant's scenes live in
+/// directories of their own ([`SceneVariant::scene_dir`]).
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]
 pub struct SceneVariant {
     /// Film N frames instead of the evaluation's 36, the hands' motion

@@ -8,7 +8,10 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video test bench clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene test bench clean
+
+# The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
+export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
 
 # Everything the project needs beyond the Rust toolchain of the machine.
 setup: system-packages lpips
@@ -102,6 +105,16 @@ pipeline-video: build
 	$(MAKE) pipeline VIDEO=$(FIXTURE_CLIP_DIR)/capture/cam0/color.mp4 DEPTH=$(FIXTURE_CLIP_DIR)/capture/cam0/depth \
 	  VIDEO_ARGS="--intrinsics $$(python3 -c 'import json; c=json.load(open("$(FIXTURE_CLIP_DIR)/capture/calibration.json"))["cameras"][0]; print("%r,%r,%r,%r" % (c["fx"], c["fy"], c["cx"], c["cy"]))')"
 	./target/release/dm-prep score $(PIPELINE_OUT)/scene --reference $(FIXTURE_CLIP_DIR)/truth --camera0
+
+# A foreign-physics scene: the same preset, action, hands, effect and
+# sensors as dm-synth's, simulated by MuJoCo's flex (docs/foreign.md).
+# make foreign-scene PRESET=rope ACTION=lift EFFECT=air_drag:20 SEED=3 OUT=DIR
+ACTION ?= lift
+FOREIGN_OUT = $(if $(filter command line,$(origin OUT)),$(OUT),out/foreign/$(PRESET)-$(ACTION)-s$(SEED)$(if $(EFFECT),-$(subst :,_,$(EFFECT))))
+foreign-scene: build
+	@rm -rf $(FOREIGN_OUT) $(FOREIGN_OUT).truth.json
+	./target/release/dm-synth --engine mujoco --preset $(PRESET) --action $(ACTION) --seed $(SEED) $(if $(EFFECT),--effect $(EFFECT)) \
+	  --out $(FOREIGN_OUT) --truth $(FOREIGN_OUT).truth.json $(FOREIGN_ARGS)
 
 # LPIPS for dm-eval, offline at run time: a Python venv with the pinned
 # onnxruntime (its shared library is what dm-eval loads), the AlexNet weights

@@ -103,6 +103,9 @@ pub struct Recording {
     pub truth_particles: usize,
     pub tracks: usize,
     pub bundle_particles: usize,
+    /// Physics engine of the scenes' truth (`dm-synth --engine`; absent: mpm).
+    #[serde(default)]
+    pub engine: dm_synth::Engine,
 }
 
 /// One synthetic scene.
@@ -218,6 +221,7 @@ impl Suite {
                 truth_particles: r.truth_particles,
                 tracks: r.tracks,
                 bundle_particles: r.bundle_particles,
+                engine: r.engine,
                 ..SynthConfig::new(spec.preset, spec.seed)
             };
             config
@@ -963,6 +967,7 @@ mod tests {
                     truth_particles: 2000,
                     tracks: 60,
                     bundle_particles: 800,
+                    engine: dm_synth::Engine::Mpm,
                 },
                 scenes: Vec::new(),
                 fit_args: Vec::new(),

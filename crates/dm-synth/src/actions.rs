@@ -59,11 +59,11 @@ fn min_jerk(tau: f64) -> f64 {
 }
 
 impl HandScript {
-    /// Anchor positions at time `t` (seconds).
-    pub fn anchors_at(&self, t: f64) -> Vec<[f64; 3]> {
+    /// The hand's pose at time `t` (seconds): where its grasp point is,
+    /// and how far it has turned about +z (radians).
+    pub fn pose_at(&self, t: f64) -> ([f64; 3], f64) {
         let mut offset = [0.0; 3];
         let mut angle = 0.0f64;
-        let mut pivot = self.grasp;
         for seg in &self.segments {
             let s = min_jerk((t - seg.start_s) / (seg.end_s - seg.start_s));
             for a in 0..3 {
@@ -71,9 +71,16 @@ impl HandScript {
             }
             angle += s * seg.twist_deg.to_radians();
         }
+        let mut pivot = self.grasp;
         for a in 0..3 {
             pivot[a] += offset[a];
         }
+        (pivot, angle)
+    }
+
+    /// Anchor positions at time `t` (seconds).
+    pub fn anchors_at(&self, t: f64) -> Vec<[f64; 3]> {
+        let (pivot, angle) = self.pose_at(t);
         let (sin, cos) = angle.sin_cos();
         self.anchors
             .iter()

@@ -12,12 +12,14 @@
 pub mod actions;
 pub mod effects;
 mod field;
+pub mod foreign;
 pub mod sensor;
 pub mod shapes;
 pub mod truth;
 
 pub use actions::Action;
 pub use effects::{EffectName, EffectSpec, draw_hidden_effect};
+pub use foreign::Engine;
 pub use shapes::Preset;
 pub use truth::{GroundTruth, TRUTH_VERSION, TruthFile, first_truth_version, simulate_truth};
 
@@ -33,6 +35,8 @@ pub enum SynthError {
     Simulation(#[from] dm_mpm::SimError),
     #[error(transparent)]
     Bundle(#[from] dm_bundle::BundleError),
+    #[error("foreign-physics engine: {0}")]
+    Engine(String),
     #[error("writing the capture: {0}")]
     Capture(String),
     #[error("{path}: {source}")]
@@ -94,6 +98,11 @@ pub struct SynthConfig {
     #[arg(long)]
     #[serde(default)]
     pub exact_hands: bool,
+    /// Physics engine of the truth: dm-mpm, or MuJoCo's flex as foreign
+    /// physics (a Python with `mujoco`, named by DM_MUJOCO_PYTHON).
+    #[arg(long, value_enum, default_value_t = Engine::Mpm)]
+    #[serde(default)]
+    pub engine: Engine,
 }
 
 impl SynthConfig {
@@ -114,6 +123,7 @@ impl SynthConfig {
             bundle_particles: 8_000,
             exact_tracks: false,
             exact_hands: false,
+            engine: Engine::Mpm,
         }
     }
 
@@ -172,6 +182,9 @@ impl SynthConfig {
         if self.bundle_particles < 100 {
             return bad("--bundle-particles", "need at least 100 particles");
         }
+        if self.engine == Engine::Mujoco {
+            foreign::check_effect(self)?;
+        }
         Ok(())
     }
 
@@ -213,9 +226,21 @@ pub fn generate_with_capture(
     progress: Progress<'_>,
 ) -> Result<TruthFile, SynthError> {
     config.validate()?;
-    let truth = simulate_truth(config, progress)?;
+    let (truth, record) = match config.engine {
+        Engine::Mpm => {
+            let truth = simulate_truth(config, progress)?;
+            let record = truth.truth_file(config);
+            (truth, record)
+        }
+        Engine::Mujoco => {
+            let foreign = foreign::simulate_foreign(config, progress)?;
+            let mut record = foreign.truth.truth_file(config);
+            record.engine = Some(foreign.engine);
+            record.effect_displacement_m = foreign.effect_displacement_m;
+            (foreign.truth, record)
+        }
+    };
     sensor::write_bundle(config, &truth, out, capture, progress)?;
-    let record = truth.truth_file(config);
     dm_bundle::write_json_atomic(truth_path, &record)?;
     Ok(record)
 }

@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 
 pub const FPS: f64 = 30.0;
 /// Frames simulated before recording so the object rests under gravity.
-const SETTLE_FRAMES: usize = 8;
+pub(crate) const SETTLE_FRAMES: usize = 8;
 /// Truth fidelity relative to the model defaults (grid 32, dt 8e-4): the
 /// grid's cells over the domain of the object and the hands alone.
 const TRUTH_GRID: usize = 48;
@@ -26,7 +26,7 @@ const TRUTH_GRID: usize = 48;
 /// 1026: its end stayed at x = 0.26 m while the push and a tilted gravity
 /// drove it outwards), a constraint no model with a wider domain can
 /// reproduce (docs/RESULTS.md, twenty-fifth session).
-const WALL_ROOM_M: f64 = 0.1;
+pub(crate) const WALL_ROOM_M: f64 = 0.1;
 const TRUTH_SUBSTEPS_PER_FRAME: usize = 84;
 
 /// Expert mix (Neo-Hookean, fixed corotated, StVK) of a `--homogeneous` truth.
@@ -100,6 +100,15 @@ pub struct TruthFile {
     pub truth_particles: usize,
     pub physics: PhysicsConfig,
     pub config: SynthConfig,
+    /// What the foreign engine reported (absent when dm-mpm made the truth).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub engine: Option<crate::foreign::EngineRecord>,
+    /// How far the hidden effect moves the object: the mean distance (m)
+    /// of its surface particles from the same scene without the effect
+    /// (for `actuator_lag`, of the recorded hand anchors from the true
+    /// ones). Reported for foreign scenes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub effect_displacement_m: Option<f64>,
 }
 
 /// The version of a record written before versions were recorded (serde's
@@ -115,7 +124,7 @@ impl TruthFile {
     }
 }
 
-fn median(values: &[f64]) -> f64 {
+pub(crate) fn median(values: &[f64]) -> f64 {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -140,6 +149,8 @@ impl GroundTruth {
             truth_particles: self.cloud.len(),
             physics: self.physics.clone(),
             config: config.clone(),
+            engine: None,
+            effect_displacement_m: None,
         }
     }
 }
@@ -240,11 +251,85 @@ fn density_axis(preset: Preset, seed: u64) -> (usize, bool) {
     (axis, splitmix(seed ^ 0xde05).is_multiple_of(2))
 }
 
+/// Gravity tilted by `tilt_deg` towards an azimuth drawn from `seed`; the
+/// azimuth and the vector go into the truth file's effect parameters.
+pub(crate) fn tilted_gravity(
+    seed: u64,
+    tilt_deg: f64,
+    effect_extra: &mut BTreeMap<String, serde_json::Value>,
+) -> [f64; 3] {
+    let azimuth = seeded_angle(seed ^ 0x7117);
+    let tilt = tilt_deg.to_radians();
+    let g = 9.8;
+    let gravity = [
+        g * tilt.sin() * azimuth.cos(),
+        g * tilt.sin() * azimuth.sin(),
+        -g * tilt.cos(),
+    ];
+    effect_extra.insert(
+        "azimuth_deg".into(),
+        serde_json::json!(azimuth.to_degrees()),
+    );
+    effect_extra.insert("gravity".into(), serde_json::json!(gravity));
+    gravity
+}
+
+/// Density factors `1 + a s` of `density_variation` at `positions`, `s`
+/// running from 0 to 1 along the preset's longest axis towards the heavy
+/// end; the axis and end go into the truth file's effect parameters.
+pub(crate) fn density_factors(
+    config: &SynthConfig,
+    magnitude: f64,
+    positions: &[[f64; 3]],
+    effect_extra: &mut BTreeMap<String, serde_json::Value>,
+) -> Vec<f64> {
+    let (axis, heavy_at_max) = density_axis(config.preset, config.seed);
+    let coords: Vec<f64> = positions.iter().map(|p| p[axis]).collect();
+    let lo = coords.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = coords.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    effect_extra.insert("axis".into(), serde_json::json!(axis));
+    effect_extra.insert("heavy_at_max".into(), serde_json::json!(heavy_at_max));
+    coords
+        .iter()
+        .map(|c| {
+            let s = (c - lo) / (hi - lo).max(1e-9);
+            1.0 + magnitude * if heavy_at_max { s } else { 1.0 - s }
+        })
+        .collect()
+}
+
+/// Every hand's anchors per recorded frame, `lag_s` seconds late.
+pub(crate) fn hand_anchor_frames(
+    hands: &[HandScript],
+    frames: usize,
+    lag_s: f64,
+) -> Vec<Vec<[f64; 3]>> {
+    (0..frames)
+        .map(|t| {
+            hands
+                .iter()
+                .flat_map(|h| h.anchors_at(t as f64 / FPS - lag_s))
+                .collect()
+        })
+        .collect()
+}
+
+/// How late the recorded hand track runs (`actuator_lag`'s magnitude).
+pub(crate) fn hand_track_lag_s(config: &SynthConfig) -> f64 {
+    match config.effect {
+        Some(EffectSpec {
+            name: EffectName::ActuatorLag,
+            magnitude,
+        }) => magnitude,
+        _ => 0.0,
+    }
+}
+
 /// The truth simulation's physics before the effect: a cubic domain holding
 /// the object, every hand anchor over the clip and `room_m` around the
 /// object along the floor ([`WALL_ROOM_M`]), its grid as fine as
 /// [`TRUTH_GRID`] cells over the domain without the room.
-fn truth_physics<'a>(
+pub(crate) fn truth_physics<'a>(
     preset: Preset,
     anchors: impl Iterator<Item = &'a [f64; 3]>,
     room_m: f64,
@@ -304,14 +389,7 @@ pub fn simulate_truth(
         inclusion,
     } = truth_material(config, &cloud);
 
-    let anchor_frames: Vec<Vec<[f64; 3]>> = (0..config.frames)
-        .map(|t| {
-            hands
-                .iter()
-                .flat_map(|h| h.anchors_at(t as f64 / FPS))
-                .collect()
-        })
-        .collect();
+    let anchor_frames = hand_anchor_frames(&hands, config.frames, 0.0);
     let mut physics = truth_physics(preset, anchor_frames.iter().flatten(), WALL_ROOM_M);
     let mut effect_extra = BTreeMap::new();
     match config.effect {
@@ -338,44 +416,19 @@ pub fn simulate_truth(
         Some(EffectSpec {
             name: EffectName::GroundTilt,
             magnitude,
-        }) => {
-            let azimuth = seeded_angle(config.seed ^ 0x7117);
-            let tilt = magnitude.to_radians();
-            let g = 9.8;
-            physics.gravity = [
-                g * tilt.sin() * azimuth.cos(),
-                g * tilt.sin() * azimuth.sin(),
-                -g * tilt.cos(),
-            ];
-            effect_extra.insert(
-                "azimuth_deg".into(),
-                serde_json::json!(azimuth.to_degrees()),
-            );
-            effect_extra.insert("gravity".into(), serde_json::json!(physics.gravity));
-        }
+        }) => physics.gravity = tilted_gravity(config.seed, magnitude, &mut effect_extra),
         _ => {}
     }
     let density_factors = match config.effect {
         Some(EffectSpec {
             name: EffectName::DensityVariation,
             magnitude,
-        }) => {
-            let (axis, heavy_at_max) = density_axis(preset, config.seed);
-            let coords: Vec<f64> = cloud.positions.iter().map(|p| p[axis]).collect();
-            let lo = coords.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = coords.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            effect_extra.insert("axis".into(), serde_json::json!(axis));
-            effect_extra.insert("heavy_at_max".into(), serde_json::json!(heavy_at_max));
-            Some(
-                coords
-                    .iter()
-                    .map(|c| {
-                        let s = (c - lo) / (hi - lo).max(1e-9);
-                        1.0 + magnitude * if heavy_at_max { s } else { 1.0 - s }
-                    })
-                    .collect::<Vec<f64>>(),
-            )
-        }
+        }) => Some(density_factors(
+            config,
+            magnitude,
+            &cloud.positions,
+            &mut effect_extra,
+        )),
         _ => None,
     };
     let material = ParticleMaterial::<f32>::from_fields(&youngs, &poisson, &weights);
@@ -405,21 +458,7 @@ pub fn simulate_truth(
         frames.push(as_f32(world.positions()));
         progress("truth simulation", SETTLE_FRAMES + t + 2, total);
     }
-    let lag_s = match config.effect {
-        Some(EffectSpec {
-            name: EffectName::ActuatorLag,
-            magnitude,
-        }) => magnitude,
-        _ => 0.0,
-    };
-    let recorded_anchors = (0..config.frames)
-        .map(|t| {
-            hands
-                .iter()
-                .flat_map(|h| h.anchors_at(t as f64 / FPS - lag_s))
-                .collect()
-        })
-        .collect();
+    let recorded_anchors = hand_anchor_frames(&hands, config.frames, hand_track_lag_s(config));
     Ok(GroundTruth {
         preset,
         hands,

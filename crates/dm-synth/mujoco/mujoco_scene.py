@@ -1,0 +1,278 @@
+#!/usr/bin/env python3
+"""Simulates one foreign-physics scene with MuJoCo.
+
+Usage: mujoco_scene.py DIR
+
+Reads DIR/request.json (written by dm-synth --engine mujoco: the object's
+flex mesh, material, hands, hidden effect and the truth particles' rest
+positions), simulates the object as a MuJoCo flex held by mocap hands
+through equality constraints, and writes
+
+  DIR/cloud_frames.npy   (T, N, 3) float32: every truth particle per frame,
+                         carried by the flex element it lies in at rest
+  DIR/vertex_frames.npy  (T, V, 3) float32: the flex vertices per frame
+  DIR/result.json        engine version, step, wall time
+
+Progress goes to stderr as "frame K/T" lines. Exit 1 with a message on
+stderr when the simulation diverges.
+"""
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+try:
+    import mujoco
+except ImportError:
+    sys.stderr.write("error: this Python cannot import mujoco (pip install 'mujoco>=3.3')\n")
+    sys.exit(3)
+
+
+def flex_xml(req):
+    """The MJCF model: floor, mocap hands, the flex and the grips."""
+    dim = req["dim"]
+    verts = np.asarray(req["vertices"], dtype=np.float64)
+    elems = np.asarray(req["elements"], dtype=np.int64)
+    point = " ".join(f"{c:.6f}" for c in verts.ravel())
+    element = " ".join(str(i) for i in elems.ravel())
+    mu = req["floor_friction"]
+    # Frictionless floor unless the scene hides floor friction: the world
+    # model's own floor slips, so a null scene carries no friction.
+    contact = (
+        f'condim="3" friction="{mu} 0.005 0.0001"' if mu > 0 else 'condim="1"'
+    )
+    if dim == 1:
+        body = '<edge equality="true" solref="0.004 1"/>'
+        elastic = ""
+    else:
+        body = ""
+        elastic = ' elastic2d="both"' if dim == 2 else ""
+    thickness = f' thickness="{req["thickness"]}"' if dim == 2 else ""
+    g = " ".join(f"{c:.9f}" for c in req["gravity"])
+    dt = 1.0 / req["fps"] / req["substeps_per_frame"]
+    hands = "\n".join(
+        f'<body name="hand{k}" mocap="true" pos="{h["grasp"][0]:.6f} {h["grasp"][1]:.6f} {h["grasp"][2]:.6f}"/>'
+        for k, h in enumerate(req["hands"])
+    )
+    grips = []
+    for k, h in enumerate(req["hands"]):
+        for v in h["held_vertices"]:
+            a = verts[v] - np.asarray(h["grasp"])
+            grips.append(
+                f'<connect body1="hand{k}" body2="object_{v}" anchor="{a[0]:.6f} {a[1]:.6f} {a[2]:.6f}" solref="0.004 1"/>'
+            )
+    return f"""
+<mujoco model="dm-synth foreign scene">
+  <option timestep="{dt:.9f}" gravity="{g}" integrator="discrete"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1" pos="0 0 {req["floor_height"]}" {contact}/>
+    {hands}
+    <flexcomp name="object" type="direct" dim="{dim}" radius="{req["radius"]}" point="{point}" element="{element}" mass="{req["mass_kg"]}">
+      {body}
+      <elasticity young="{req["young_pa"]}" poisson="{req["poisson"]}" damping="{req["damping_s"]}"{thickness}{elastic}/>
+      <contact {contact} selfcollide="none"/>
+    </flexcomp>
+  </worldbody>
+  <equality>
+    {chr(10).join(grips)}
+  </equality>
+</mujoco>
+"""
+
+
+def apply_mass_and_drag(model, req):
+    """Per-vertex mass factors (a density gradient) and linear air drag as
+    world-frame damping on each vertex's slide joints (force -c m v)."""
+    factors = req.get("vertex_mass_factors")
+    drag = req["air_drag_per_s"]
+    flex_bodies = model.flex_vertbodyid[: model.flex_vertnum[0]]
+    for v, b in enumerate(flex_bodies):
+        if factors is not None:
+            model.body_mass[b] *= factors[v]
+            model.body_inertia[b] *= factors[v]
+        if drag > 0:
+            for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
+                if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE:
+                    model.dof_damping[model.jnt_dofadr[j]] = drag * model.body_mass[b]
+    if factors is not None:
+        mujoco.mj_setConst(model, mujoco.MjData(model))
+
+
+class Embedding:
+    """Each truth particle as a fixed combination of flex vertices (the
+    element that holds it at rest), plus for shells and ropes an offset
+    carried by the element's current orientation."""
+
+    def __init__(self, dim, verts, elems, points):
+        self.dim, self.elems = dim, elems
+        if dim == 3:
+            self.elem, self.bary = self._in_tets(verts, elems, points)
+        elif dim == 2:
+            self.elem, self.bary, self.offset = self._on_triangles(verts, elems, points)
+        else:
+            self.elem, self.s, self.offset, self.rest_tangent = self._on_segments(verts, elems, points)
+
+    @staticmethod
+    def _best(points, count, bary_of):
+        best = np.full(len(points), -np.inf)
+        elem = np.zeros(len(points), dtype=np.int64)
+        bary = np.zeros((len(points), 0))
+        for start in range(0, count, 256):
+            ids = np.arange(start, min(count, start + 256))
+            b = bary_of(ids)  # (P, E, k)
+            score = b.min(axis=2)
+            k = score.argmax(axis=1)
+            s = score[np.arange(len(points)), k]
+            better = s > best
+            best[better] = s[better]
+            elem[better] = ids[k[better]]
+            if bary.shape[1] == 0:
+                bary = np.zeros((len(points), b.shape[2]))
+            bary[better] = b[np.arange(len(points)), k][better]
+        return elem, bary
+
+    def _in_tets(self, verts, tets, points):
+        v0 = verts[tets[:, 0]]
+        m = np.stack([verts[tets[:, i]] - v0 for i in (1, 2, 3)], axis=2)  # (E,3,3) columns
+        inv = np.linalg.inv(m)
+
+        def bary_of(ids):
+            d = points[:, None, :] - v0[None, ids]
+            l = np.einsum("eij,pej->pei", inv[ids], d)
+            return np.concatenate([1.0 - l.sum(axis=2, keepdims=True), l], axis=2)
+
+        return self._best(points, len(tets), bary_of)
+
+    def _on_triangles(self, verts, tris, points):
+        a = verts[tris[:, 0], :2]
+        m = np.stack([verts[tris[:, i], :2] - a for i in (1, 2)], axis=2)
+        inv = np.linalg.inv(m)
+
+        def bary_of(ids):
+            d = points[:, None, :2] - a[None, ids]
+            l = np.einsum("eij,pej->pei", inv[ids], d)
+            return np.concatenate([1.0 - l.sum(axis=2, keepdims=True), l], axis=2)
+
+        elem, bary = self._best(points, len(tris), bary_of)
+        mid = np.einsum("pk,pkc->pc", bary, verts[tris[elem]])
+        offset = points[:, 2] - mid[:, 2]
+        return elem, bary, offset
+
+    def _on_segments(self, verts, segs, points):
+        a, b = verts[segs[:, 0]], verts[segs[:, 1]]
+        ab = b - a
+        t = np.einsum("pec,ec->pe", points[:, None, :] - a[None], ab) / (ab * ab).sum(axis=1)
+        t = np.clip(t, 0.0, 1.0)
+        closest = a[None] + t[..., None] * ab[None]
+        dist = np.linalg.norm(points[:, None, :] - closest, axis=2)
+        elem = dist.argmin(axis=1)
+        idx = np.arange(len(points))
+        s = t[idx, elem]
+        offset = points - closest[idx, elem]
+        tangent = ab[elem] / np.linalg.norm(ab[elem], axis=1, keepdims=True)
+        return elem, s, offset, tangent
+
+    def positions(self, verts):
+        e = self.elems[self.elem]
+        if self.dim == 3:
+            return np.einsum("pk,pkc->pc", self.bary, verts[e])
+        if self.dim == 2:
+            tri = verts[e]
+            normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+            return np.einsum("pk,pkc->pc", self.bary, tri) + self.offset[:, None] * normal
+        a, b = verts[e[:, 0]], verts[e[:, 1]]
+        tangent = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+        return a + self.s[:, None] * (b - a) + rotate_between(self.rest_tangent, tangent, self.offset)
+
+
+def rotate_between(u, w, x):
+    """Rotates each x by the smallest rotation taking unit u onto unit w."""
+    axis = np.cross(u, w)
+    c = (u * w).sum(axis=1, keepdims=True)
+    # Rodrigues with k = axis (|k| = sin): x c + k × x + k (k·x) / (1 + c).
+    kx = np.cross(axis, x)
+    kdotx = (axis * x).sum(axis=1, keepdims=True)
+    return x * c + kx + axis * kdotx / np.maximum(1.0 + c, 1e-9)
+
+
+def hand_pose(pose):
+    """Mocap position and quaternion of a [x, y, z, twist_rad] pose."""
+    x, y, z, a = pose
+    return np.array([x, y, z]), np.array([np.cos(a / 2), 0.0, 0.0, np.sin(a / 2)])
+
+
+def main():
+    if len(sys.argv) != 2:
+        sys.stderr.write(__doc__)
+        return 2
+    root = Path(sys.argv[1])
+    req = json.loads((root / "request.json").read_text())
+    model = mujoco.MjModel.from_xml_string(flex_xml(req))
+    apply_mass_and_drag(model, req)
+    data = mujoco.MjData(model)
+    verts0 = np.asarray(req["vertices"], dtype=np.float64)
+    elems = np.asarray(req["elements"], dtype=np.int64)
+    cloud = np.asarray(req["cloud_rest"], dtype=np.float64)
+    embedding = Embedding(req["dim"], verts0, elems, cloud)
+    hands = req["hands"]
+    frames, settle, substeps = req["frames"], req["settle_frames"], req["substeps_per_frame"]
+    poses = [np.asarray(h["poses"], dtype=np.float64) for h in hands]
+
+    def set_hands(frame, frac):
+        for k, p in enumerate(poses):
+            a = p[min(frame, len(p) - 1)]
+            b = p[min(frame + 1, len(p) - 1)]
+            pos, quat = hand_pose(a + frac * (b - a))
+            data.mocap_pos[k] = pos
+            data.mocap_quat[k] = quat
+
+    start = time.time()
+    set_hands(0, 0.0)
+    mujoco.mj_forward(model, data)
+    nv = model.flex_vertnum[0]
+    vertex_frames = np.zeros((frames, nv, 3), dtype=np.float32)
+    cloud_frames = np.zeros((frames, len(cloud), 3), dtype=np.float32)
+    total = settle + frames - 1
+    done = 0
+
+    def step_frame(frame, moving):
+        """One recorded frame of substeps; the hands hold still while settling."""
+        nonlocal done
+        for s in range(substeps):
+            set_hands(frame, (s + 1) / substeps if moving else 0.0)
+            mujoco.mj_step(model, data)
+        verts = data.flexvert_xpos[:nv]
+        if not np.all(np.isfinite(verts)) or np.abs(verts).max() > 100.0:
+            sys.stderr.write(f"error: the MuJoCo simulation diverged in frame {frame}\n")
+            sys.exit(1)
+        done += 1
+        sys.stderr.write(f"frame {done}/{total}\n")
+
+    for _ in range(settle):
+        step_frame(0, moving=False)
+    for t in range(frames):
+        if t > 0:
+            step_frame(t - 1, moving=True)
+        verts = np.array(data.flexvert_xpos[:nv])
+        vertex_frames[t] = verts
+        cloud_frames[t] = embedding.positions(verts)
+    np.save(root / "cloud_frames.npy", cloud_frames)
+    np.save(root / "vertex_frames.npy", vertex_frames)
+    result = {
+        "engine": "mujoco",
+        "version": mujoco.__version__,
+        "timestep_s": float(model.opt.timestep),
+        "steps": int((settle + frames - 1) * substeps),
+        "seconds": time.time() - start,
+        "mass_kg": float(sum(model.body_mass[b] for b in model.flex_vertbodyid[:nv])),
+    }
+    (root / "result.json").write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -902,6 +902,30 @@ pub fn update_results_markdown(
 mod tests {
     use super::*;
 
+    /// Every suite file committed under benchmarks/ parses and plans, so a
+    /// long benchmark is not first found broken when someone runs it.
+    #[test]
+    fn every_committed_suite_file_loads() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../benchmarks");
+        let mut loaded = 0;
+        for entry in std::fs::read_dir(&dir).expect("benchmarks/") {
+            let path = entry.expect("entry").path();
+            if path.extension().is_some_and(|e| e == "json") {
+                let suite = Suite::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                assert!(!suite.scenes.is_empty() && !suite.variants.is_empty());
+                loaded += 1;
+            }
+        }
+        assert!(loaded >= 3, "{loaded} suite files");
+        let foreign = Suite::load(&dir.join("foreign.json")).expect("foreign suite");
+        assert!(
+            foreign
+                .scenes
+                .iter()
+                .all(|s| s.config.engine == dm_synth::Engine::Mujoco)
+        );
+    }
+
     #[test]
     fn marked_section_is_replaced_and_appended_once() {
         let path = Path::new("RESULTS.md");

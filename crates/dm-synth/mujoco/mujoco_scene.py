@@ -269,6 +269,8 @@ def main():
         "steps": int((settle + frames - 1) * substeps),
         "seconds": time.time() - start,
         "mass_kg": float(sum(model.body_mass[b] for b in model.flex_vertbodyid[:nv])),
+        # MuJoCo's own warnings (ill-conditioned solves and the like), summed.
+        "warnings": int(sum(w.number for w in data.warning)),
     }
     (root / "result.json").write_text(json.dumps(result, indent=1))
     return 0

@@ -251,6 +251,10 @@ pub struct EngineRecord {
     pub steps: usize,
     pub seconds: f64,
     pub mass_kg: f64,
+    /// MuJoCo's warnings over the run (its log stays in the temporary
+    /// directory).
+    #[serde(default)]
+    pub warnings: u64,
     /// Set by dm-synth: the flex's dimension, vertex and element counts,
     /// and its elastic damping.
     #[serde(default)]
@@ -506,8 +510,16 @@ fn run_engine(
     let text = serde_json::to_string(request)
         .map_err(|e| engine_error(format!("encoding the request: {e}")))?;
     std::fs::write(&request_path, text).map_err(|e| io(&request_path, e))?;
-    let python = std::env::var(PYTHON_ENV).unwrap_or_else(|_| "python3".into());
+    let mut python = std::env::var(PYTHON_ENV).unwrap_or_else(|_| "python3".into());
+    // MuJoCo writes its log to the working directory: run in the temporary one.
+    // Absolute, not canonical: a venv's interpreter is a symlink that must stay one.
+    if python.contains('/')
+        && let Ok(absolute) = std::path::absolute(&python)
+    {
+        python = absolute.to_string_lossy().into_owned();
+    }
     let mut child = Command::new(&python)
+        .current_dir(dir.path())
         .arg(&script)
         .arg(dir.path())
         .stdout(Stdio::null())

@@ -45,10 +45,10 @@ def flex_xml(req):
         f'condim="3" friction="{mu} 0.005 0.0001"' if mu > 0 else 'condim="1"'
     )
     if dim == 1:
-        body = '<edge equality="true" solref="0.004 1"/>'
+        edges = '<edge equality="true" solref="0.004 1"/>'
         elastic = ""
     else:
-        body = ""
+        edges = ""
         elastic = ' elastic2d="both"' if dim == 2 else ""
     thickness = f' thickness="{req["thickness"]}"' if dim == 2 else ""
     g = " ".join(f"{c:.9f}" for c in req["gravity"])
@@ -71,7 +71,7 @@ def flex_xml(req):
     <geom name="floor" type="plane" size="5 5 0.1" pos="0 0 {req["floor_height"]}" {contact}/>
     {hands}
     <flexcomp name="object" type="direct" dim="{dim}" radius="{req["radius"]}" point="{point}" element="{element}" mass="{req["mass_kg"]}">
-      {body}
+      {edges}
       <elasticity young="{req["young_pa"]}" poisson="{req["poisson"]}" damping="{req["damping_s"]}"{thickness}{elastic}/>
       <contact {contact} selfcollide="none"/>
     </flexcomp>
@@ -116,10 +116,12 @@ class Embedding:
             self.elem, self.s, self.offset, self.rest_tangent = self._on_segments(verts, elems, points)
 
     @staticmethod
-    def _best(points, count, bary_of):
+    def _best(points, count, width, bary_of):
+        """The element whose smallest barycentric weight is largest (the
+        one containing the point, or the nearest by that measure)."""
         best = np.full(len(points), -np.inf)
         elem = np.zeros(len(points), dtype=np.int64)
-        bary = np.zeros((len(points), 0))
+        bary = np.zeros((len(points), width))
         for start in range(0, count, 256):
             ids = np.arange(start, min(count, start + 256))
             b = bary_of(ids)  # (P, E, k)
@@ -129,8 +131,6 @@ class Embedding:
             better = s > best
             best[better] = s[better]
             elem[better] = ids[k[better]]
-            if bary.shape[1] == 0:
-                bary = np.zeros((len(points), b.shape[2]))
             bary[better] = b[np.arange(len(points)), k][better]
         return elem, bary
 
@@ -144,7 +144,7 @@ class Embedding:
             l = np.einsum("eij,pej->pei", inv[ids], d)
             return np.concatenate([1.0 - l.sum(axis=2, keepdims=True), l], axis=2)
 
-        return self._best(points, len(tets), bary_of)
+        return self._best(points, len(tets), 4, bary_of)
 
     def _on_triangles(self, verts, tris, points):
         a = verts[tris[:, 0], :2]
@@ -156,7 +156,7 @@ class Embedding:
             l = np.einsum("eij,pej->pei", inv[ids], d)
             return np.concatenate([1.0 - l.sum(axis=2, keepdims=True), l], axis=2)
 
-        elem, bary = self._best(points, len(tris), bary_of)
+        elem, bary = self._best(points, len(tris), 3, bary_of)
         mid = np.einsum("pk,pkc->pc", bary, verts[tris[elem]])
         offset = points[:, 2] - mid[:, 2]
         return elem, bary, offset

@@ -17,9 +17,9 @@ use crate::effects::{EffectName, EffectSpec};
 use crate::shapes::{ParticleCloud, Preset};
 use crate::truth::{
     FPS, GroundTruth, SETTLE_FRAMES, WALL_ROOM_M, density_factors, hand_anchor_frames,
-    hand_track_lag_s, tilted_gravity, truth_physics,
+    hand_track_lag_s, tilted_gravity, truth_cloud, truth_physics,
 };
-use crate::{Progress, SynthConfig, SynthError, splitmix};
+use crate::{Progress, SynthConfig, SynthError};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
@@ -313,11 +313,7 @@ pub fn simulate_foreign(
     let preset = config.preset;
     let action = config.resolved_action();
     let hands = plan(preset, action, config.two_hands, config.frames as f64 / FPS);
-    let cloud = ParticleCloud::fill(
-        preset,
-        config.truth_particles,
-        splitmix(config.seed ^ 0xc10d),
-    );
+    let cloud = truth_cloud(config);
     let mesh = FlexMesh::for_preset(preset);
     let mut effect_extra = BTreeMap::new();
     let request = scene_request(
@@ -458,6 +454,7 @@ fn scene_request(
             }
             // The hands move the same; only their record lags.
             EffectName::ActuatorLag => {}
+            // Refused by `check_effect` before any request is made.
             EffectName::AirDragQuadratic | EffectName::Plasticity | EffectName::StiffInclusion => {}
         }
     }

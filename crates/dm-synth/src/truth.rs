@@ -251,6 +251,15 @@ fn density_axis(preset: Preset, seed: u64) -> (usize, bool) {
     (axis, splitmix(seed ^ 0xde05).is_multiple_of(2))
 }
 
+/// The truth particles of `config`'s scene, whichever engine moves them.
+pub(crate) fn truth_cloud(config: &SynthConfig) -> ParticleCloud {
+    ParticleCloud::fill(
+        config.preset,
+        config.truth_particles,
+        splitmix(config.seed ^ 0xc10d),
+    )
+}
+
 /// Gravity tilted by `tilt_deg` towards an azimuth drawn from `seed`; the
 /// azimuth and the vector go into the truth file's effect parameters.
 pub(crate) fn tilted_gravity(
@@ -377,11 +386,7 @@ pub fn simulate_truth(
     let action = config.resolved_action();
     let duration = config.frames as f64 / FPS;
     let hands = plan(preset, action, config.two_hands, duration);
-    let cloud = ParticleCloud::fill(
-        preset,
-        config.truth_particles,
-        splitmix(config.seed ^ 0xc10d),
-    );
+    let cloud = truth_cloud(config);
     let TruthMaterialFields {
         youngs,
         poisson,

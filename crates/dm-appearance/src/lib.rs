@@ -1,4 +1,4 @@
-//! The appearance of a world model (method.md §6, issue 7).
+//! The appearance of a world model (method.md §6).
 //!
 //! * [`fit`]: the first-frame Gaussian-splat fit to a bundle's multi-view
 //!   images (masked L1 + 0.2 D-SSIM, `dm_splat::fit`), initialised from

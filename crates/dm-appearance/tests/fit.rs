@@ -1,4 +1,4 @@
-//! The first-frame appearance fit on a tiny synthetic scene (issue 7):
+//! The first-frame appearance fit on a tiny synthetic scene:
 //! the fit must raise the frame-0 PSNR of the training cameras above a
 //! threshold, score the held-out camera, and store splats that load back.
 

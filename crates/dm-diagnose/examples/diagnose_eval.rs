@@ -1,4 +1,4 @@
-//! The full hidden-effect evaluation of issue 6:
+//! The full hidden-effect evaluation of the diagnosis (docs/diagnose.md):
 //!
 //!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit] [VARIANT OPTIONS]
 //!
@@ -26,7 +26,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 /// Synthesises, fits and diagnoses the hidden-effect and null scenes of
-/// issue 6's evaluation and tabulates the named causes.
+/// the diagnosis evaluation and tabulates the named causes.
 #[derive(Parser)]
 struct Args {
     /// Where the scenes, fits, diagnoses, results.jsonl and confusion.md go.

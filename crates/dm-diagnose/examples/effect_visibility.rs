@@ -1,5 +1,5 @@
-//! How far each hidden effect moves the object in the diagnosis scenes
-//! (issue 6): the evidence behind the "detectable range" of
+//! How far each hidden effect moves the object in the diagnosis scenes:
+//! the evidence behind the "detectable range" of
 //! `dm_synth::EffectName::test_range`.
 //!
 //!     cargo run --release -p dm-diagnose --example effect_visibility -- OUT_DIR [SEED] [EFFECTS] [PRESETS]

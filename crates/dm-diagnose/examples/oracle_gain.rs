@@ -1,5 +1,5 @@
-//! How much the right candidate can show in each evaluation scene
-//! (issue 6): the scene's base fit repeated with the hidden effect's true
+//! How much the right candidate can show in each evaluation scene:
+//! the scene's base fit repeated with the hidden effect's true
 //! term in place from the start (`dm_diagnose::oracle`).
 //!
 //!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [OPTIONS]

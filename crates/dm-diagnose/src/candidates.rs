@@ -10,7 +10,7 @@ use dm_model::extension::{DensityGradient, StiffBall};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
-/// The library (issue 6's list; `air_drag` carries linear and quadratic drag).
+/// The library (`air_drag` carries linear and quadratic drag).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Candidate {

@@ -1,4 +1,4 @@
-//! The hidden-effect evaluation (issue 6): synthesise a scene with a
+//! The hidden-effect evaluation: synthesise a scene with a
 //! seeded random effect (or none), fit it, diagnose it, and tabulate the
 //! named causes against the hidden ones. Shared by the integration test
 //! and `examples/diagnose_eval.rs`.
@@ -52,7 +52,7 @@ pub fn quick_fit_options() -> FitOptions {
 /// truth 1.2e5), and candidates that stiffen or damp the soft model then
 /// "explain" its misfit: null cloth 1516's held-out Track is 24.1 mm after
 /// the quick fit (viscous damping named, 13.2 mm) and 8.6 mm after this
-/// one, in 56 s instead of 13 s (docs/RESULTS.md, fifteenth session).
+/// one, in 56 s instead of 13 s (docs/RESULTS.md).
 pub fn evaluation_fit_options() -> FitOptions {
     FitOptions {
         iters: 6,
@@ -60,7 +60,7 @@ pub fn evaluation_fit_options() -> FitOptions {
         lr: 0.2,
         // The candidates' effect terms keep the quick fit's rate: at 0.2
         // they overshot (density excess 7–8 against 3.3–3.7, a tilt 11.9°
-        // against 7.2°; docs/RESULTS.md, sixteenth session).
+        // against 7.2°; docs/RESULTS.md).
         effect_lr: Some(0.1),
         ..quick_fit_options()
     }

@@ -1,4 +1,4 @@
-//! Diagnosis of a fitted world model (issue 6).
+//! Diagnosis of a fitted world model.
 //!
 //! * **Show** ([`analysis`]): the fitted model rolled out open loop, its
 //!   errors per frame and per region, residual accelerations (observed
@@ -619,8 +619,7 @@ fn fit_candidates(
 }
 
 /// A few material Adam steps with the effect in place (every effect's
-/// state adjoint exists in dm-mpm; floor friction's since the seventh
-/// session).
+/// state adjoint exists in dm-mpm).
 fn refit_material(
     model: &WorldModel,
     bundle: &Bundle,

@@ -1,4 +1,4 @@
-//! The oracle fit (issue 6): a scene's base fit repeated with the hidden
+//! The oracle fit: a scene's base fit repeated with the hidden
 //! effect's *true* term in place from the start, scored against the base
 //! fit as the diagnosis scores a candidate fitted from the start
 //! (`--fit-candidates`). It is what the right candidate shows when its

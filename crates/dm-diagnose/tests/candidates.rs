@@ -151,7 +151,7 @@ const GRAVITY_RTOL: f64 = 1e-9;
 /// rounding separates them.
 const DENSITY_FACTOR_ATOL: f64 = 1e-9;
 
-/// The oracle fit (issue 6) starts from the truth's effect in the
+/// The oracle fit starts from the truth's effect in the
 /// candidate's terms: the tilt gives back the truth's gravity, the density
 /// gradient its axis and heavy end, the lag its frames; a scene without an
 /// effect is refused, naming the field.

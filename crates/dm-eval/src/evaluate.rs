@@ -21,7 +21,7 @@ pub struct EvalOptions {
     pub camera: usize,
     /// Frames to roll out and score (`None`: the whole clip).
     pub frames: Option<usize>,
-    /// The model's fitted first-frame Gaussian splats (issue 7), moved
+    /// The model's fitted first-frame Gaussian splats, moved
     /// along the rollout by LBS and rendered for the image metrics; `None`:
     /// the particles are drawn as spheres ([`render_prediction`]).
     pub splats: Option<dm_splat::Gaussians<f32>>,

@@ -1,4 +1,4 @@
-//! The benchmark suite (issue 5, docs/suite.md): synthetic scenes of the
+//! The benchmark suite (docs/suite.md): synthetic scenes of the
 //! three categories, each fitted by every `dm-fit` variant of a committed
 //! suite file and scored with the benchmark's metrics; per-run results are
 //! cached so an interrupted suite resumes, diverged runs are recorded as
@@ -87,7 +87,7 @@ pub struct SuiteFile {
 }
 
 /// The benchmark suite's section in docs/RESULTS.md.
-pub const DEFAULT_RESULTS_HEADING: &str = "## Benchmark suite (issue 5)";
+pub const DEFAULT_RESULTS_HEADING: &str = "## Benchmark suite";
 
 fn default_results_heading() -> String {
     DEFAULT_RESULTS_HEADING.to_owned()
@@ -707,8 +707,8 @@ impl GroupKey {
 
 /// The overall table, then one per category present (in the order linear,
 /// planar, volumetric), then — when any scene hides an effect — one per
-/// hidden effect and one for the scenes without (the residual ablation of
-/// issue 4 compares variants on each).
+/// hidden effect and one for the scenes without (the residual ablation
+/// compares variants on each).
 pub fn tables(suite: &Suite, runs: &[RunResult]) -> Vec<GroupTable> {
     let mut groups: Vec<(String, GroupKey)> = vec![("all".into(), GroupKey::All)];
     for category in [Category::Linear, Category::Planar, Category::Volumetric] {
@@ -944,7 +944,7 @@ mod tests {
             "text after the section is kept"
         );
         // Another suite's section (its own heading and markers) sits beside it.
-        let ablation = "## Residual ablation (issue 4)";
+        let ablation = "## Residual ablation";
         let third = replace_marked_section(&second, "ablation 1", ablation, path).expect("appends");
         let fourth =
             replace_marked_section(&third, "ablation 2", ablation, path).expect("replaces");

@@ -1,5 +1,5 @@
 //! dm-fit's stages from the bundle's model with another actuator grasp
-//! radius (m): does the grip's width move the fitted material (issue 3)?
+//! radius (m): does the grip's width move the fitted material?
 //!
 //!     cargo run --release -p dm-fit --example fit_with_grasp_radius -- \
 //!         SCENE --grasp-radius 0.014 --out DIR [dm-fit's flags]

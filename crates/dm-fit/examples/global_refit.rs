@@ -1,5 +1,5 @@
 //! Where do the observed tracks put E, ν and the gains once the optimiser
-//! is not the question (issue 3)? Levenberg–Marquardt on the homogeneous
+//! is not the question? Levenberg–Marquardt on the homogeneous
 //! directions (ln E, ν, ln k_p, ln k_d) of the bundle's model, by
 //! central-difference Jacobians of whole rollouts over the training frames
 //! (`dm_fit::identifiability::gauss_newton_step`): the least-squares fit of

@@ -1,4 +1,4 @@
-//! Can a material-recovery clip determine E and ν at all (issue 3)? The
+//! Can a material-recovery clip determine E and ν at all? The
 //! Cramér–Rao lower bound of the clip's observed training tracks
 //! (`dm_fit::identifiability`), at the scene's true material with the
 //! truth's grip (or at a fitted model), over ln E, ν, ln k_p and ln k_d:

@@ -1,4 +1,4 @@
-//! Which term of L_dyn prefers which E (issue 3)? Rolls out the bundle's
+//! Which term of L_dyn prefers which E? Rolls out the bundle's
 //! model with the scene's true homogeneous material scaled by each factor
 //! (ν and the expert mix true), with given actuators, and sums each term
 //! of the training loss (track, shape, length) and their weighted total

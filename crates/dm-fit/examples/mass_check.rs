@@ -1,4 +1,4 @@
-//! Does the model weigh the object right (issue 3)? E is measured
+//! Does the model weigh the object right? E is measured
 //! against inertia and gravity, so a model mass off by some factor
 //! shifts the recovered E by about the same factor. Compares the
 //! bundle model's particle count × particle volume with the truth's.

@@ -1,5 +1,5 @@
-//! Where the held-out error of a material-recovery scene comes from
-//! (issue 3): rolls out the bundle's model with the untrained, the true
+//! Where the held-out error of a material-recovery scene comes from:
+//! rolls out the bundle's model with the untrained, the true
 //! and (optionally) the fitted parameters, and the model's own particles
 //! carried by the true motion — the error no parameter choice can remove.
 //! Each is scored twice: against the bundle's observed tracks (the

@@ -63,7 +63,7 @@ impl Parameter {
         }
     }
 
-    /// Central-difference half step: about a third of issue 3's tolerance
+    /// Central-difference half step: about a third of the recovery tolerance
     /// on the material (ln 1.25 ≈ 0.22 on E, 0.05 on ν), so the secant
     /// measures the scale the tolerance asks about while staying close to
     /// linear; the gains get the same relative step as E.

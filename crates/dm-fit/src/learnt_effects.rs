@@ -1,4 +1,4 @@
-//! Effect terms a fit learns beside the material (issue 6): the drag and
+//! Effect terms a fit learns beside the material: the drag and
 //! viscosity coefficients, a ground tilt, a stiff ball's factor and a
 //! density gradient's excess and axis, where the start model has them
 //! switched on.

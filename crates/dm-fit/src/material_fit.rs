@@ -70,7 +70,7 @@ pub struct MaterialFitConfig {
     /// Step the residual network only; the material stays as it is.
     pub freeze_material: bool,
     /// Also step the effect terms the model has switched on (drag and
-    /// viscosity coefficients, a ground tilt; issue 6) beside the material
+    /// viscosity coefficients, a ground tilt) beside the material
     /// ([`crate::learnt_effects`]).
     #[serde(default = "learn_effects_by_default")]
     pub learn_effects: bool,

@@ -9,8 +9,8 @@
 //! training Track error by 17 % or less (ropes 2.7–7.2 %, +8 to +26 % held
 //! out), while on the hidden effects that cost the physics most
 //! (plasticity, a 20 /s drag on the toy) it lowered it by 18–51 %, and the
-//! held-out error by 29–67 % on 7 of those 8 scenes (docs/RESULTS.md,
-//! issue 4, twenty-third session). So at the end of the dynamics stages the fit is compared with
+//! held-out error by 29–67 % on 7 of those 8 scenes (docs/RESULTS.md).
+//! So at the end of the dynamics stages the fit is compared with
 //! the same fit without the network, on the Track metric of the training
 //! split, and falls back to that fit below the threshold. The comparison
 //! sees training frames only: the held-out frames stay unseen.

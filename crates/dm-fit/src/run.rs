@@ -32,7 +32,7 @@ pub struct FitOptions {
     /// default gains pull the material off (toy E 2.0e5 → 1.75e5, truth
     /// 4e5); 18 steps instead of 6 bring E from −48 % to −27 % (toy), −5 %
     /// to −4 % (rope), +10 % to +5 % (cloth) and lower held-out Chamfer on
-    /// all three, for 50–70 % more fit time (docs/RESULTS.md, issue 3).
+    /// all three, for 50–70 % more fit time (docs/RESULTS.md).
     #[arg(long, default_value_t = 18)]
     pub stage2_iters: usize,
     /// Adam learning rate on the unbounded material parameters.
@@ -44,7 +44,7 @@ pub struct FitOptions {
     /// run records written before the option existed ran. The rate that
     /// suits an effect is not the material's: at lr 0.2 density excesses
     /// overshot to 7–8 (truths 3.3–3.7) and a tilt to 11.9° (truth 7.2°;
-    /// docs/RESULTS.md, sixteenth session).
+    /// docs/RESULTS.md).
     #[arg(long)]
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub effect_lr: Option<f64>,
@@ -57,7 +57,7 @@ pub struct FitOptions {
     /// Joint steps alone leave most of a hidden effect's error in place; 36
     /// of these, with `--residual-keep late-frames`, cut held-out Track
     /// error 15 % (air drag) and 37 % (plasticity) below `--residual none`
-    /// (docs/RESULTS.md, issue 4). Run records written before the option
+    /// (docs/RESULTS.md). Run records written before the option
     /// existed read as 0.
     #[arg(long, default_value_t = 36)]
     #[serde(default)]
@@ -75,7 +75,7 @@ pub struct FitOptions {
     /// explains little of the training error had fitted the clip's
     /// particulars: on the benchmark's two ropes without any effect it
     /// lowered the training error 7–10 % and raised the held-out error
-    /// 27–31 % (docs/RESULTS.md, issue 4, twenty-third session). Run
+    /// 27–31 % (docs/RESULTS.md). Run
     /// records written before the option read as 0, as they ran.
     #[arg(long, default_value_t = DEFAULT_RESIDUAL_MIN_GAIN, value_parser = parse_min_gain)]
     #[serde(default)]
@@ -93,7 +93,7 @@ pub struct FitOptions {
     /// [GRASP_RADIUS_SEARCH_M]), starting from the model's. The grip's width
     /// trades against E: on a toy the training loss's best E moved from
     /// ≤ ×0.75 to ≥ ×1.5 with how many particles fell inside the grasp
-    /// radius (docs/RESULTS.md, issue 3, nineteenth session). Run records
+    /// radius (docs/RESULTS.md). Run records
     /// written before the option read as `false`.
     #[arg(long)]
     #[serde(default)]
@@ -112,7 +112,7 @@ pub struct FitOptions {
     /// coefficients, a ground tilt) fixed. By default the material stages
     /// learn them beside the material (`dm_fit::learnt_effects`); a model
     /// fitted from a bundle has none switched on, so this only matters for a start with an effect in
-    /// place (`dm-diagnose`'s candidates, issue 6). Run records written
+    /// place (`dm-diagnose`'s candidates). Run records written
     /// before the option existed read as `false`.
     #[arg(long)]
     #[serde(default)]
@@ -196,7 +196,7 @@ pub enum ResidualKeep {
     /// falling while the open-loop rollout's late frames, the ones nearest
     /// the held-out split, can drift apart (toy s4 air drag: train Track of
     /// frames 12–16 rose from 9 to 13 mm between 12 and 36 steps, held-out
-    /// 11.6 → 17.2 mm; docs/RESULTS.md, issue 4).
+    /// 11.6 → 17.2 mm; docs/RESULTS.md).
     LateFrames,
 }
 
@@ -219,7 +219,7 @@ fn default_residual_lr() -> f64 {
 /// every effect-free scene whose network made the held-out Track error
 /// more than 5 % worse. The largest training gain among those was 16.7 %
 /// (cloth s8 stretch, +7.2 % held out); the four others gained 2.7–7.5 %
-/// (docs/RESULTS.md, issue 4, twenty-third session).
+/// (docs/RESULTS.md).
 pub const DEFAULT_RESIDUAL_MIN_GAIN: f64 = 0.17;
 
 fn parse_min_gain(text: &str) -> Result<f64, String> {

@@ -1,11 +1,11 @@
 //! How sharply a clip pins the fitted material: the relative rise of the
-//! training loss when the fitted E or ν is moved by issue 3's tolerances
+//! training loss when the fitted E or ν is moved by the recovery tolerances
 //! (E ×0.75 / ×1.25, ν ∓0.05), everything else held.
 //!
 //! A parameter the clip does not constrain is still given a value by the
 //! fit; this says which values to trust. On the rope stretch scene, ν
-//! ±0.05 changes the held-out Chamfer by ≤ 0.02 mm of 4.2 (docs/RESULTS.md,
-//! issue 3): ν there is whatever the optimiser's path left it at.
+//! ±0.05 changes the held-out Chamfer by ≤ 0.02 mm of 4.2 (docs/RESULTS.md):
+//! ν there is whatever the optimiser's path left it at.
 
 use crate::material_fit::{FitError, train_loss};
 use dm_bundle::Bundle;

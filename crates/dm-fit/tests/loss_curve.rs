@@ -1,5 +1,5 @@
-//! The loss curve marks the residual network the fit kept (issue 4,
-//! `--residual-keep late-frames`), also when it is the network after the
+//! The loss curve marks the residual network the fit kept
+//! (`--residual-keep late-frames`), also when it is the network after the
 //! last step, one iteration past the recorded history; its title says
 //! whether the residual check kept the network.
 

@@ -21,7 +21,7 @@ fn issue3_material_stage_lowers_loss_and_moves_youngs_towards_truth() {
     )
     .expect("scene");
     let bundle = Bundle::open(&out).expect("bundle");
-    // Physics only (issue 4 regression: a model without a residual must fit).
+    // Physics only (regression: a model without a residual must fit).
     let options = ModelOptions {
         residual: ResidualKind::None,
         ..ModelOptions::default()

@@ -1,4 +1,4 @@
-//! Physics a diagnosis added to a fitted model (issue 6) that does not
+//! Physics a diagnosis added to a fitted model that does not
 //! live in `PhysicsConfig::effects`: a stiffer ball, a density gradient
 //! and a time shift of the hand track. The effects that do (drag,
 //! friction, plasticity, viscosity, gravity) are set on `physics` itself.

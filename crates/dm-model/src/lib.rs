@@ -78,8 +78,8 @@ pub struct ModelOptions {
     /// local linear fit in time with Gaussian weights of this σ, in frames,
     /// over the frames where each anchor was seen (0: off, the raw track).
     /// For noisy hand trackers; on synthetic scenes with 3 mm hand jitter,
-    /// σ 1.5 and 3 recover part of what exact hands gain (docs/RESULTS.md,
-    /// issue 3). Models saved before the option read as 0.
+    /// σ 1.5 and 3 recover part of what exact hands gain (docs/RESULTS.md).
+    /// Models saved before the option read as 0.
     #[arg(long, default_value_t = 0.0)]
     #[serde(default)]
     pub hand_smoothing: f64,
@@ -137,7 +137,7 @@ pub struct WorldModel {
     /// saved before the residual existed have none).
     #[serde(default)]
     pub residual: Option<ResidualState>,
-    /// Physics added by a diagnosis (issue 6) beyond `physics.effects`.
+    /// Physics added by a diagnosis beyond `physics.effects`.
     #[serde(default, skip_serializing_if = "ModelExtension::is_empty")]
     pub extension: ModelExtension,
 }

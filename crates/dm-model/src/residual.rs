@@ -1,4 +1,4 @@
-//! The neural residual inside the world model (method.md §5, issue 4): its
+//! The neural residual inside the world model (method.md §5): its
 //! weights saved with the model, its per-frame correction after the MPM
 //! substeps, and the backward pass through correction and network that the
 //! fit chains with the physics adjoint.

@@ -13,7 +13,7 @@
 //! ū ↦ Π_t ū + μ (t̂·ū) n + (μ v_n/|v_t|)(Π_t ū − t̂ (t̂·ū)) with
 //! Π_t = I − n nᵀ; sticking gives u = 0 and passes nothing back. The
 //! branch is taken from the forward values, like the projections'. The
-//! coefficient's own adjoint (a learnt friction, issue 6) is
+//! coefficient's own adjoint (a learnt friction) is
 //! μ̄ = Σ ū · ∂u/∂μ = Σ v_n (t̂·ū) over the sliding floor nodes (a
 //! sticking node's u = 0 does not depend on μ), summed like ḡ below.
 //!
@@ -21,7 +21,7 @@
 //! the boundaries' adjoint is taken at its output, and its own adjoint
 //! (`viscosity_backward.rs`) turns that into ū_pre and a share of m̄.
 //!
-//! Gravity (a learnable tilt, issue 6): ḡ = dt γ Σ ū_pre over the nodes
+//! Gravity (a learnable tilt): ḡ = dt γ Σ ū_pre over the nodes
 //! with mass, summed per slab and then over slabs in order, so the sum
 //! does not depend on the thread count.
 

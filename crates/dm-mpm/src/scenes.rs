@@ -18,7 +18,7 @@ pub enum BenchExperts {
     Mixture,
 }
 
-/// The block our peer measurements use (issue 2): `n` particles uniformly
+/// The block our peer measurements use: `n` particles uniformly
 /// random in [0.35,0.65]×[0.15,0.45]×[0.35,0.65] of the unit domain,
 /// initial velocity (0.3, −1.5, 0) m/s plus a rotation about the block's
 /// centre (2 rad/s about z) and a uniform compression (rate 1/s),

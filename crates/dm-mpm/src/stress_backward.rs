@@ -21,7 +21,7 @@ pub struct ImpulseGrads<T> {
     pub external_accel: Vec3<T>,
     /// This particle's share of the adjoints of the effect parameters
     /// `[k₁ (air_drag_linear), k₂ (air_drag_quadratic)]`; a parameter's
-    /// gradient is the sum over particles (issue 6).
+    /// gradient is the sum over particles.
     pub effects: [T; 2],
     /// Adjoint of the particle's mass (a density gradient's parameter):
     /// `Ā : C + M̄ · (v + dt a)`.

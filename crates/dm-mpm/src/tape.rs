@@ -98,7 +98,7 @@ pub struct FrameGrads<T> {
     /// Adjoints of the effect coefficients over the differentiated window.
     pub effects: EffectGrads,
     /// Adjoint of each particle's mass over the differentiated window
-    /// (a density gradient's parameter, issue 6).
+    /// (a density gradient's parameter).
     pub mass: Vec<T>,
 }
 

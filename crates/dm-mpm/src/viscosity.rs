@@ -1,7 +1,7 @@
 //! Stage 3b (only when η > 0): implicit strain-rate viscosity on the grid.
 //!
 //! Explicit viscous stress is stable only for η ≲ ρ dx² / (6 dt), about
-//! 40 Pa·s on the model's grid, where it moves nothing visible (issue 6).
+//! 40 Pa·s on the model's grid, where it moves nothing visible.
 //! Here the node velocities u (after gravity and damping, before the
 //! boundaries) are replaced by the solution of
 //!

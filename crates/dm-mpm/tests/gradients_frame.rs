@@ -250,7 +250,7 @@ fn issue3_truncated_window_records_only_the_last_substeps() {
     );
 }
 
-/// The residual's hook (issue 3 → issue 4): a frame followed by a velocity
+/// The residual's hook: a frame followed by a velocity
 /// correction, differentiated with respect to the correction and the
 /// frame's start state, one particle pushed against the position clip so
 /// that the clipped branch is exercised too.

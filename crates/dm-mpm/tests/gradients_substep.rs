@@ -4,7 +4,7 @@
 //! (with air drag and viscous damping on), and the effect parameters
 //! k₁, k₂ (drag) and η (viscosity); and with a floor under the particles,
 //! sliding and sticking under Coulomb friction, with the friction
-//! coefficient's own adjoint (issue 6).
+//! coefficient's own adjoint.
 
 use dm_mpm::PhysicsConfig;
 use dm_mpm::config::FloorConfig;
@@ -89,7 +89,7 @@ fn scene_with(seed: u64, pure_neo_hookean: bool, floor: Option<FloorCase>) -> Sc
     config.empty_node_mass_ratio = 0.0;
     config.effects.air_drag_linear = 0.7;
     config.effects.air_drag_quadratic = 0.4;
-    // Viscous damping (issue 6), solved implicitly on the grid: with the
+    // Viscous damping, solved implicitly on the grid: with the
     // particles' density ρ = 1, dt η / (ρ dx²) ≈ 5, so the viscous term
     // outweighs the nodes' mass and a wrong term in its adjoint (the
     // solve, its mass dependence) moves every gradient beyond FD_RTOL.
@@ -290,7 +290,7 @@ fn check_scene(seed: u64, s: Scene) {
             .zip(&dla)
             .for_each(|(m, d)| *m += d * h)
     });
-    // Masses (a density gradient's parameter, issue 6): a relative
+    // Masses (a density gradient's parameter): a relative
     // direction, so the FD_STEP step changes each 1e-4 kg mass by 1e-6 of
     // itself, like the other inputs' steps against their scale.
     let dmass: Vec<f64> = s
@@ -318,7 +318,7 @@ fn check_scene(seed: u64, s: Scene) {
                 .for_each(|(a, d)| *a += d * h)
         },
     );
-    // Effect parameters (issue 6): the per-particle shares summed in order.
+    // Effect parameters: the per-particle shares summed in order.
     // Their derivatives are small (∝ dt |v|, |v| ≲ 0.1 m/s here), so the
     // FD_STEP-sized step would sit at the round-off floor of the O(1) loss;
     // probing along a direction of length EFFECT_DIRECTION is a 1e-3 step,

@@ -733,7 +733,7 @@ fn a_material_too_stiff_for_the_grid_is_refused_not_run_forever() {
 }
 
 /// Grid damping keeps its rate per second when the CFL bound refines the
-/// substep (issue 3's nineteenth-session note: 0.999 per refined substep
+/// substep (regression: 0.999 per refined substep
 /// damped the toy's model at its true E at 4.3 /s instead of 1.25 /s, so
 /// changing E changed the damping).
 /// A rigid translation carries no stress, so after one frame its velocity

@@ -1,4 +1,4 @@
-//! `dm-play`: the interactive playground (issue 9). A fitted world model
+//! `dm-play`: the interactive playground. A fitted world model
 //! runs live in a [`Session`] (the MPM world of `dm-model`, two hands as
 //! DCA anchors moved from the keyboard, material and damping set from
 //! sliders); [`server`] serves the page and streams the state over a

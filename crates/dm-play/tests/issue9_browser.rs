@@ -342,7 +342,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
 
     // Reset (the material is kept) so that the two grabs below aim at the
     // object at rest: held aloft by hand 1 it sways, and a click aimed at
-    // its rest position may miss it (issue 9's CI failure at 82050a6).
+    // its rest position may miss it (a CI failure at 82050a6).
     let before_reset = get_json(addr, "/api/state")["frame"].as_u64().unwrap_or(0);
     click_element(client, "reset").await?;
     wait_until("the reset", || async move {

@@ -400,7 +400,7 @@ mod tests {
         assert_eq!((none.points.len(), none.len()), (2, 0));
     }
 
-    /// Regression (issue 8: toy capture at 5.12 mm): frame-to-frame flow on
+    /// Regression (a toy capture at 5.12 mm): frame-to-frame flow on
     /// noisy frames random-walks away from the surface point; the frame-0
     /// anchor keeps the last frame as accurate as the first step.
     #[test]

@@ -1,4 +1,4 @@
-//! The neural residual of DeformMaster (method.md §5, issue 4): a bounded
+//! The neural residual of DeformMaster (method.md §5): a bounded
 //! velocity correction Δv predicted after each frame's MPM substeps,
 //! v ← ṽ + Δv, x ← x̃ + Δv·Δt_frame.
 //!

@@ -285,7 +285,7 @@ fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
     assert!(largest < 0.05, "one step moved |dv| to {largest} m/s");
 }
 
-/// Regression (issue 4, a toy fit stopped by a NaN gradient): a particle
+/// Regression (a toy fit stopped by a NaN gradient): a particle
 /// just below a cell's half-way point reaches its stencil's far corner
 /// node with a weight near f32's smallest normal; the node's feature is a
 /// ratio of two such numbers, whose derivative overflowed. The VJP must

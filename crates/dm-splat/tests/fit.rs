@@ -1,4 +1,4 @@
-//! The appearance fit (issue 7): the D-SSIM gradient against central
+//! The appearance fit: the D-SSIM gradient against central
 //! differences in f64, the masked loss's gradient, and a fit that must
 //! bring a perturbed set of Gaussians back to its target images.
 

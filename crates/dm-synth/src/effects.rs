@@ -1,5 +1,5 @@
-//! Hidden physical effects a synthetic scene can carry (issue 2; the
-//! diagnosis issue extends the list). `NAME[:MAGNITUDE]` on the CLI.
+//! Hidden physical effects a synthetic scene can carry, the diagnosis's
+//! library among them. `NAME[:MAGNITUDE]` on the CLI.
 
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -187,7 +187,7 @@ impl EffectSpec {
     }
 }
 
-/// A hidden-effect draw for diagnosis tests (issue 6): a preset, and an
+/// A hidden-effect draw for diagnosis tests: a preset, and an
 /// effect from the library with a magnitude uniform in its
 /// [`EffectName::test_range`] — all from `seed`.
 pub fn draw_hidden_effect(seed: u64) -> (crate::Preset, EffectSpec) {

@@ -141,7 +141,7 @@ impl SynthConfig {
         }
     }
 
-    /// The short scene the diagnosis tests and evaluation use (issue 6):
+    /// The short scene the diagnosis tests and evaluation use:
     /// 36 frames (1.2 s; the last 11 held out) of 48×36 images, 3000 truth
     /// particles, 120 tracks — a fit and a diagnosis take about a minute
     /// each on 2 cores.

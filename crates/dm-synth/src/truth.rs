@@ -25,7 +25,7 @@ const TRUTH_GRID: usize = 48;
 /// one cell from the wall and was held there for the whole clip (seed
 /// 1026: its end stayed at x = 0.26 m while the push and a tilted gravity
 /// drove it outwards), a constraint no model with a wider domain can
-/// reproduce (docs/RESULTS.md, twenty-fifth session).
+/// reproduce (docs/RESULTS.md).
 pub(crate) const WALL_ROOM_M: f64 = 0.1;
 const TRUTH_SUBSTEPS_PER_FRAME: usize = 84;
 

@@ -1,4 +1,4 @@
-//! `--exact-hands` (issue 6): the bundle's hand tracks are the scripted
+//! `--exact-hands`: the bundle's hand tracks are the scripted
 //! anchors, every frame seen, and nothing else in the scene changes, so an
 //! experiment with and without it isolates what the noisy drive costs.
 

@@ -1,5 +1,5 @@
 //! `dm-appearance`: fits the first-frame Gaussian splats of a world model
-//! to its scene's multi-view images (method.md §6, issue 7) and stores them
+//! to its scene's multi-view images (method.md §6) and stores them
 //! in the model directory (`gaussians.ply`, `appearance.json`), where
 //! dm-render and dm-eval find them.
 

@@ -81,7 +81,7 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
-    /// The playground's frame (issue 9): one simulation frame of a fitted
+    /// The playground's frame: one simulation frame of a fitted
     /// model with a hand pulling (MPM + splat LBS + the frame message), then
     /// the main view at the page's default 640×480 drawn as the page draws
     /// it (depth-tested sprites), on the CPU. Prints `play_fps` = 1 /

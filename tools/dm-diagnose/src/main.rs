@@ -1,6 +1,6 @@
 //! `dm-diagnose MODEL_DIR BUNDLE --out DIR [--truth FILE]`: shows where a
 //! fitted model departs from the observations, names the physical cause,
-//! extends the model with it and measures the held-out gain (issue 6).
+//! extends the model with it and measures the held-out gain.
 
 use anyhow::{Context, Result};
 use clap::Parser;

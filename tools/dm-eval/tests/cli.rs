@@ -1,4 +1,4 @@
-//! `dm-eval` from the command line (issue 5): the metrics of a tiny
+//! `dm-eval` from the command line: the metrics of a tiny
 //! synthetic scene's untrained model, and clear errors for bad input.
 
 use dm_synth::{Preset, SynthConfig};
@@ -143,7 +143,7 @@ fn issue5_eval_rejects_a_missing_camera_and_skips_lpips_only_when_asked() {
     assert!(metrics["train"]["psnr"].is_f64());
 }
 
-/// With splats in the model directory (issue 7) dm-eval renders them,
+/// With splats in the model directory dm-eval renders them,
 /// says so in `run.renderer`, and its frame-0 PSNR on camera 0 is the one
 /// the fit recorded; without, it draws particle spheres.
 #[test]

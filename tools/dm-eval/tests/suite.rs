@@ -1,4 +1,4 @@
-//! `dm-eval --suite` end to end (issue 5): the committed CI suite (one tiny
+//! `dm-eval --suite` end to end: the committed CI suite (one tiny
 //! rope scene, two one-step physics-only fits) runs, writes suite.json and
 //! the tables, resumes from its cache, fills a marked section of a results
 //! file, and a bad suite file is an error naming the file and the field.

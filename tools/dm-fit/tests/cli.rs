@@ -1,4 +1,4 @@
-//! `dm-fit` from the command line (issue 3): the report's contract keys,
+//! `dm-fit` from the command line: the report's contract keys,
 //! and a fit paused and resumed gives the same model as an uninterrupted one.
 
 use dm_synth::{Preset, SynthConfig};
@@ -145,7 +145,7 @@ fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
     assert!(String::from_utf8_lossy(&result.stderr).contains("different options"));
 }
 
-/// `--residual-iters N` (issue 4): N steps on the residual network after
+/// `--residual-iters N`: N steps on the residual network after
 /// stage 2 with the physics frozen: the material fields equal those of the
 /// same fit without the stage, the network's weights do not.
 #[test]
@@ -198,7 +198,7 @@ fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
     );
 }
 
-/// `--identifiability` (issue 3): the Cramér–Rao bound is printed, one
+/// `--identifiability`: the Cramér–Rao bound is printed, one
 /// entry per parameter, and a bad noise value is refused naming the flag.
 #[test]
 fn issue3_identifiability_is_printed_and_bad_noise_refused() {

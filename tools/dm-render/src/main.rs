@@ -1,4 +1,4 @@
-//! `dm-render`: renders a world model's fitted Gaussian splats (issue 7)
+//! `dm-render`: renders a world model's fitted Gaussian splats
 //! from a bundle camera, a novel viewpoint or an orbit, following a
 //! rollout driven by the bundle's hand track; PNG frames and an MP4.
 

@@ -1,4 +1,4 @@
-//! `dm-render` from the command line (issue 7): frames and the MP4
+//! `dm-render` from the command line: frames and the MP4
 //! (OpenCV) of a tiny scene's fitted splats, and clear errors for bad
 //! input.
 

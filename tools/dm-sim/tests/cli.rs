@@ -1,4 +1,4 @@
-//! `dm-sim` from the command line (issue 2): a rollout of a small scene,
+//! `dm-sim` from the command line: a rollout of a small scene,
 //! and clear errors naming the file and field for a corrupted bundle.
 
 use dm_synth::{Preset, SynthConfig};

@@ -1,4 +1,4 @@
-//! `dm-synth` from the command line (issue 2): determinism from the seed,
+//! `dm-synth` from the command line: determinism from the seed,
 //! independent of thread count; the truth stays outside the bundle; bad
 //! input fails with a clear message and writes nothing.
 

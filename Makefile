@@ -23,7 +23,7 @@ build: setup
 
 # Debian packages: OpenCV (dm-render's MP4 through the opencv crate, which
 # generates its bindings with libclang at build time) and headless Chromium
-# with its WebDriver (dm-play's browser test, issue 9). Installed only when
+# with its WebDriver (dm-play's browser test). Installed only when
 # missing; as root or via sudo.
 DEB_PACKAGES ?= libopencv-dev clang libclang-dev pkg-config chromium chromium-driver
 system-packages:
@@ -37,11 +37,11 @@ system-packages:
 # A short fit keeps the demo to a few minutes on 2 cores; see dm-fit --help.
 # Physics only: the neural residual (dm-fit's default, --residual pgnd) costs
 # about 0.7 s per frame and step on 2 cores, 3.4x the fit time, for a few
-# per cent at this length (docs/RESULTS.md, issue 4). DEMO_FIT="..." to try it.
+# per cent at this length (docs/RESULTS.md). DEMO_FIT="..." to try it.
 # Stage 3 (first-frame Gaussians, then RGB-guided refinement; 30 steps by
 # default) gets one step here: dm-fit writes the splats dm-render uses.
 DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1
-# Diagnosis (issue 6) runs on a small second scene hiding a tilted ground,
+# Diagnosis runs on a small second scene hiding a tilted ground,
 # at the size and quick fit of the hidden-effect evaluation
 # (crates/dm-diagnose/src/evaluation.rs): about 1 min for synth, fit and
 # diagnosis, where the main 72-frame scene takes about 9 min to diagnose.
@@ -72,7 +72,7 @@ demo: build
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 	@echo "               $(OUT)/diagnose/error_vs_time.png  $(OUT)/diagnose/candidates.png  $(OUT)/diagnose/error_map.png"
 
-# Capture to rendered model (issue 8): dm-prep turns an RGB-D capture
+# Capture to rendered model: dm-prep turns an RGB-D capture
 # directory (docs/capture.md) into a bundle, then a short fit and a
 # novel-view render. Without CAPTURE=DIR or VIDEO=clip.mp4 a synthetic
 # capture is written first (dm-synth --capture-out, PRESET/SEED).

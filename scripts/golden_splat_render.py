@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Golden reference render for dm-splat (issue 7).
+"""Golden reference render for dm-splat.
 
 An independent, deliberately plain implementation of the same equations as
 crates/dm-splat (EWA projection as in 3DGS, 16x16 tile membership, front-to-back

@@ -1,4 +1,4 @@
-"""Tiny textured meshes for dm-prep's shape prior tests (issue 8).
+"""Tiny textured meshes for dm-prep's shape prior tests.
 
 A 16 x 12 x 8 cm box, each face split into a grid of quads with a random
 flat colour per quad (vertices duplicated per quad so colours stay flat:

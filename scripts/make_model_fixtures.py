@@ -1,4 +1,4 @@
-"""Tiny ONNX stand-ins with the signatures of models_manifest/ (issue 8).
+"""Tiny ONNX stand-ins with the signatures of models_manifest/.
 
 Real segmentation, tracking and depth weights cannot be downloaded here, so
 dm-prep's adapters are tested end to end on these few-KB models. Each has

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Does a base fit's material field absorb a hidden density gradient?
-(issue 6, docs/RESULTS.md, twenty-seventh session.)
+(docs/RESULTS.md, diagnosis.)
 
 For each evaluation scene directory (`diagnose_eval`'s or `oracle_gain`'s
 OUT_DIR/hiddenSEED[SUFFIX], holding `scene/`, `scene.truth.json` and the

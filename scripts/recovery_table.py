@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Material-recovery table for docs/RESULTS.md (issue 3).
+"""Material-recovery table for docs/RESULTS.md.
 
 For each preset: synthesise a scene with a homogeneous material, fit it,
 roll out the untrained and the fitted model, and tabulate truth vs fitted

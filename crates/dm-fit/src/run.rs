@@ -28,23 +28,15 @@ pub struct FitOptions {
     /// Gradient steps of stage 1 (material, default gains).
     #[arg(long, default_value_t = 12)]
     pub iters: usize,
-    /// Gradient steps of stage 2 (material, selected gains). Stage 1's
-    /// default gains pull the material off (toy E 2.0e5 → 1.75e5, truth
-    /// 4e5); 18 steps instead of 6 bring E from −48 % to −27 % (toy), −5 %
-    /// to −4 % (rope), +10 % to +5 % (cloth) and lower held-out Chamfer on
-    /// all three, for 50–70 % more fit time (docs/RESULTS.md).
+    /// Gradient steps of stage 2 (material, selected gains); why 18:
+    /// docs/fit.md.
     #[arg(long, default_value_t = 18)]
     pub stage2_iters: usize,
     /// Adam learning rate on the unbounded material parameters.
     #[arg(long, default_value_t = 0.1)]
     pub lr: f64,
-    /// Adam rate of the learnt effect terms (drag, viscosity and friction
-    /// logs, a stiff ball's log factor; the tilt and density groups step at fixed
-    /// multiples of it, `dm_fit::learnt_effects`). Unset, it is `--lr`, as
-    /// run records written before the option existed ran. The rate that
-    /// suits an effect is not the material's: at lr 0.2 density excesses
-    /// overshot to 7–8 (truths 3.3–3.7) and a tilt to 11.9° (truth 7.2°;
-    /// docs/RESULTS.md).
+    /// Adam rate of the learnt effect terms (docs/fit.md); unset, it is
+    /// `--lr`.
     #[arg(long)]
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub effect_lr: Option<f64>,
@@ -52,13 +44,8 @@ pub struct FitOptions {
     #[arg(long, default_value_t = 5e-3)]
     #[serde(default = "default_residual_lr")]
     pub residual_lr: f64,
-    /// Gradient steps on the residual network alone after stage 2, with the
+    /// Gradient steps on the residual network alone after stage 2, the
     /// material and gains frozen (0 skips; only with --residual pgnd|mlp).
-    /// Joint steps alone leave most of a hidden effect's error in place; 36
-    /// of these, with `--residual-keep late-frames`, cut held-out Track
-    /// error 15 % (air drag) and 37 % (plasticity) below `--residual none`
-    /// (docs/RESULTS.md). Run records written before the option
-    /// existed read as 0.
     #[arg(long, default_value_t = 36)]
     #[serde(default)]
     pub residual_iters: usize,
@@ -67,16 +54,9 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
-    /// Keep the residual network (--residual pgnd|mlp) only if it lowers
-    /// the training split's Track error, open loop, by at least this
-    /// fraction against the same fit without it; otherwise the fit goes on
-    /// as `--residual none` would have (0 turns the check off). Costs one
-    /// physics-only fit, kept in `OUT/residual_check/`. A network that
-    /// explains little of the training error had fitted the clip's
-    /// particulars: on the benchmark's two ropes without any effect it
-    /// lowered the training error 7–10 % and raised the held-out error
-    /// 27–31 % (docs/RESULTS.md). Run
-    /// records written before the option read as 0, as they ran.
+    /// Keep the residual network only if it lowers the training Track
+    /// error by at least this fraction against the same fit without it (0:
+    /// no check). Costs one physics-only fit, in `OUT/residual_check/`.
     #[arg(long, default_value_t = DEFAULT_RESIDUAL_MIN_GAIN, value_parser = parse_min_gain)]
     #[serde(default)]
     pub residual_min_gain: f64,
@@ -90,11 +70,7 @@ pub struct FitOptions {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Let the gain search also choose the grasp radius (log-scaled in
-    /// [GRASP_RADIUS_SEARCH_M]), starting from the model's. The grip's width
-    /// trades against E: on a toy the training loss's best E moved from
-    /// ≤ ×0.75 to ≥ ×1.5 with how many particles fell inside the grasp
-    /// radius (docs/RESULTS.md). Run records
-    /// written before the option read as `false`.
+    /// [GRASP_RADIUS_SEARCH_M]), starting from the model's.
     #[arg(long)]
     #[serde(default)]
     pub search_grasp_radius: bool,
@@ -108,21 +84,14 @@ pub struct FitOptions {
     #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
-    /// Keep the effect terms the start model carries (drag, viscosity, friction
-    /// coefficients, a ground tilt) fixed. By default the material stages
-    /// learn them beside the material (`dm_fit::learnt_effects`); a model
-    /// fitted from a bundle has none switched on, so this only matters for a start with an effect in
-    /// place (`dm-diagnose`'s candidates). Run records written
-    /// before the option existed read as `false`.
+    /// Keep the effect terms a start model carries (drag, viscosity,
+    /// friction, a ground tilt) fixed instead of learning them.
     #[arg(long)]
     #[serde(default)]
     pub freeze_effects: bool,
-    /// After the fit, bound how precisely the clip's training tracks can
-    /// determine ln E, ν, ln k_p and ln k_d at the fitted values (the
-    /// Cramér–Rao bound, `dm_fit::identifiability`; 9 forward rollouts):
-    /// `material.identifiability` in fit_report.json. A bound far below the
-    /// gap between two fits' values says the gap is the model's, not the
-    /// noise's. Run records written before the option read as `false`.
+    /// After the fit, bound how precisely the training tracks determine
+    /// ln E, ν, ln k_p and ln k_d (Cramér–Rao; 9 rollouts), in
+    /// fit_report.json's `material.identifiability`.
     #[arg(long)]
     #[serde(default)]
     pub identifiability: bool,
@@ -192,11 +161,7 @@ pub enum ResidualKeep {
     #[default]
     Last,
     /// The network (the stage's start included) with the lowest L_dyn over
-    /// the last 30 % of the training frames. The stage's mean loss keeps
-    /// falling while the open-loop rollout's late frames, the ones nearest
-    /// the held-out split, can drift apart (toy s4 air drag: train Track of
-    /// frames 12–16 rose from 9 to 13 mm between 12 and 36 steps, held-out
-    /// 11.6 → 17.2 mm; docs/RESULTS.md).
+    /// the last 30 % of the training frames (docs/fit.md).
     LateFrames,
 }
 

@@ -75,19 +75,13 @@ pub struct ModelOptions {
     #[serde(default = "default_residual")]
     pub residual: ResidualKind,
     /// Smooth the recorded hand track before it drives the actuators: a
-    /// local linear fit in time with Gaussian weights of this σ, in frames,
-    /// over the frames where each anchor was seen (0: off, the raw track).
-    /// For noisy hand trackers; on synthetic scenes with 3 mm hand jitter,
-    /// σ 1.5 and 3 recover part of what exact hands gain (docs/RESULTS.md).
-    /// Models saved before the option read as 0.
+    /// local linear fit in time with Gaussian weights of this σ, in frames
+    /// (0: the raw track; docs/fit.md).
     #[arg(long, default_value_t = 0.0)]
     #[serde(default)]
     pub hand_smoothing: f64,
     /// Grasp radius of each hand anchor, metres: the particles within it
-    /// are held (default 0.03, a fingertip pad and its neighbourhood). A
-    /// user who knows the gripper can say so; the gain search can also
-    /// choose it (dm-fit's `--search-grasp-radius`). Models saved before
-    /// the option read as the default.
+    /// are held (default 0.03, a fingertip pad and its neighbourhood).
     #[arg(long, value_name = "METRES")]
     #[serde(default)]
     pub grasp_radius: Option<f64>,

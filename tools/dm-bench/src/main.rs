@@ -81,12 +81,8 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         repeats: usize,
     },
-    /// The playground's frame: one simulation frame of a fitted
-    /// model with a hand pulling (MPM + splat LBS + the frame message), then
-    /// the main view at the page's default 640×480 drawn as the page draws
-    /// it (depth-tested sprites), on the CPU. Prints `play_fps` = 1 /
-    /// median(simulation + render), and, for reference, the time of the
-    /// faithful dm-splat rasterizer (`play_splat_render_ms`).
+    /// The playground's frame (simulation, splat LBS, message and a
+    /// 640×480 view) of a fitted model: prints `play_fps` (docs/BENCHMARKS.md).
     Play {
         /// Fitted model directory (splats used when present).
         #[arg(long)]

@@ -5,7 +5,7 @@
 
 use dm_bundle::Tracks;
 use dm_eval::image_metrics::{benchmark_pair, iou, psnr, ssim};
-use dm_eval::lpips::{Lpips, LpipsError, LpipsPaths};
+use dm_eval::lpips::{Lpips, LpipsPaths};
 use dm_model::metrics::frame_errors;
 use image::{GrayImage, RgbImage};
 use ndarray::{Array2, Array3};
@@ -22,11 +22,6 @@ const F64_FORMULA_TOLERANCE: f64 = 1e-9;
 const LPIPS_TOLERANCE: f64 = 1e-4;
 /// Chamfer and Track: f32 positions widened to f64 on both sides.
 const POINT_TOLERANCE: f64 = 1e-9;
-
-/// Set to `1` to let the LPIPS test pass without the network *only* when
-/// its cache is absent (machines without `make lpips`); `make test` builds
-/// the cache, so there it always runs.
-const SKIP_LPIPS_ENV: &str = "DM_SKIP_LPIPS_TEST";
 
 fn golden_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/golden")
@@ -132,16 +127,8 @@ fn iou_matches_numpy() {
 
 #[test]
 fn lpips_matches_numpy_forward_pass() {
-    let paths = match LpipsPaths::discover() {
-        Ok(paths) => paths,
-        Err(e @ LpipsError::MissingCache { .. })
-            if std::env::var(SKIP_LPIPS_ENV).is_ok_and(|v| v == "1") =>
-        {
-            eprintln!("SKIPPED: LPIPS golden test: {e} ({SKIP_LPIPS_ENV}=1)");
-            return;
-        }
-        Err(e) => panic!("{e} (set {SKIP_LPIPS_ENV}=1 to skip only when the cache is absent)"),
-    };
+    let paths = LpipsPaths::discover()
+        .unwrap_or_else(|e| panic!("{e} (run `make lpips`, which builds the network)"));
     let mut network = Lpips::load(&paths, 0).expect("LPIPS network loads");
     let g = golden();
     let (a, b) = (rgb("image_a.png"), rgb("image_b.png"));

@@ -3,8 +3,7 @@
 //! manifest's signatures and simple, checkable behaviour.
 //!
 //! They need ONNX Runtime (`make lpips` installs it; `make test` runs that
-//! first). Set `DM_SKIP_ONNX_TEST=1` to let them pass where the runtime is
-//! absent; anywhere else a missing runtime fails them.
+//! first); a missing runtime fails them.
 
 use std::path::PathBuf;
 
@@ -17,22 +16,14 @@ use dm_prep::models::{Manifest, ModelError, OnnxModel, VerifyStatus, verify_dir}
 use dm_prep::scale::DepthModel;
 use image::{Rgb, RgbImage};
 
-const SKIP_ENV: &str = "DM_SKIP_ONNX_TEST";
-
 fn fixture_models() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/models")
 }
 
-/// False (and the test returns early) only when the runtime is absent and
-/// the skip variable is set.
-fn runtime_available() -> bool {
-    match dm_ort::dylib_path(&dm_ort::default_cache_dir()) {
-        Ok(_) => true,
-        Err(error) if std::env::var(SKIP_ENV).is_ok_and(|v| v == "1") => {
-            eprintln!("skipping: {error}");
-            false
-        }
-        Err(error) => panic!("{error} (set {SKIP_ENV}=1 to skip ONNX tests)"),
+/// Fails the test, naming the fix, where ONNX Runtime is absent.
+fn require_runtime() {
+    if let Err(error) = dm_ort::dylib_path(&dm_ort::default_cache_dir()) {
+        panic!("{error} (run `make lpips`, which installs ONNX Runtime)");
     }
 }
 
@@ -98,9 +89,7 @@ fn missing_model_names_the_model_its_entry_and_where_to_put_it() {
 
 #[test]
 fn verify_checks_signatures_and_pinned_digests() {
-    if !runtime_available() {
-        return;
-    }
+    require_runtime();
     let manifest = manifest();
     let reports = verify_dir(&manifest, &fixture_models());
     assert_eq!(reports.len(), manifest.entries.len());
@@ -149,9 +138,7 @@ fn verify_checks_signatures_and_pinned_digests() {
 
 #[test]
 fn a_model_with_the_wrong_signature_is_refused_with_the_entry_named() {
-    if !runtime_available() {
-        return;
-    }
+    require_runtime();
     // The depth fixture placed under the tracker's file name.
     let dir = tempfile::tempdir().expect("tempdir");
     let manifest = manifest();
@@ -178,9 +165,7 @@ fn a_model_with_the_wrong_signature_is_refused_with_the_entry_named() {
 
 #[test]
 fn segmenter_keeps_the_prompted_object_through_the_clip() {
-    if !runtime_available() {
-        return;
-    }
+    require_runtime();
     let mut segmenter =
         Segmenter::load(&manifest(), &fixture_models(), 1).expect("fixture models load");
     // Two bright squares; the box prompt holds the left one, which moves
@@ -216,9 +201,7 @@ fn segmenter_keeps_the_prompted_object_through_the_clip() {
 
 #[test]
 fn tracker_maps_queries_and_tracks_between_frame_and_model_pixels() {
-    if !runtime_available() {
-        return;
-    }
+    require_runtime();
     let mut tracker =
         PointTracker::load(&manifest(), &fixture_models(), 1).expect("fixture model loads");
     // Uniform frames of rising brightness: the fixture moves every track by
@@ -249,9 +232,7 @@ fn tracker_maps_queries_and_tracks_between_frame_and_model_pixels() {
 
 #[test]
 fn depth_adapters_return_frame_resolution_maps_made_metric_by_the_scale_fit() {
-    if !runtime_available() {
-        return;
-    }
+    require_runtime();
     let manifest = manifest();
     let image = frame(200, 150, &[(50, 40, 70)], 200);
     // Depth Anything fixture: 2 + mean over channels of the ImageNet-normalised input.

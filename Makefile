@@ -147,6 +147,7 @@ $(LPIPS_MODEL): $(LPIPS_CACHE)/downloads/.done scripts/build_lpips.py scripts/lp
 	$(LPIPS_BUILD)
 
 test: setup
+	bash scripts/check_words.sh
 	$(CARGO) test --workspace
 
 bench: build

@@ -116,7 +116,17 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
                 bar.set_position(index as u64);
                 let note = if cached { " (cached)" } else { "" };
                 bar.set_prefix(format!("{scene} / {variant}{note}"));
-                bar.println(format!("{scene} / {variant}{note}"));
+                let line = format!(
+                    "run {}/{}: {scene} / {variant}{note}",
+                    index + 1,
+                    bar.length().unwrap_or(0)
+                );
+                // A hidden bar (stderr not a terminal: a log) prints nothing itself.
+                if bar.is_hidden() {
+                    eprintln!("{line}");
+                } else {
+                    bar.println(line);
+                }
             }
             SuiteProgress::Detail(line) => bar.set_message(line.to_owned()),
         },

@@ -39,7 +39,12 @@ fn main() -> Result<()> {
         cli.resume,
         cli.stop_after,
         &mut |message| {
-            spinner.println(message);
+            // A hidden spinner (stderr not a terminal: a log) prints nothing itself.
+            if spinner.is_hidden() {
+                eprintln!("{message}");
+            } else {
+                spinner.println(message);
+            }
             spinner.set_message(message.to_string());
         },
     )

@@ -7,7 +7,7 @@
 //!
 //! The page (`page/`, embedded) draws splats (or particles) as WebGL point
 //! sprites on the client; docs/playground.md has the protocol and the JSON
-//! keys, docs/ARCHITECTURE.md the reasons.
+//! keys, docs/decisions/ (0034–0037) the reasons.
 
 pub mod record;
 pub mod scene;

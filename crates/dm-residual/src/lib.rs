@@ -12,7 +12,7 @@
 //!   no spatial structure.
 //!
 //! The network runs on candle (the choice and its measurements are in
-//! docs/ARCHITECTURE.md). Training goes through the physics adjoint: the
+//! docs/decisions/0018-residual-framework-candle.md). Training goes through the physics adjoint: the
 //! fit hands [`Residual::vjp`] the adjoint of Δv and gets back the
 //! parameter gradient and the adjoints of the network's physical inputs
 //! (x̃, ṽ, x_t), which it adds to the MPM state adjoint.

@@ -1,15 +1,17 @@
-//! Issue 6 end to end: a short dm-synth scene hides a seeded random effect
-//! (random preset, magnitude in the documented detectable range), dm-fit
-//! fits it briefly, dm-diagnose must name the effect; a null scene must
-//! give `none`. Each scene costs one short fit and one diagnosis (about
-//! two minutes on 2 cores), so CI runs one of each; the full evaluation
-//! is `cargo run --release -p dm-diagnose --example diagnose_eval`.
+//! Diagnosis end to end, as a regression on two known scenes: a short
+//! dm-synth scene (the evaluation's draw 1000, whose effect the diagnosis
+//! names) is fitted briefly and dm-diagnose must name its effect; a null
+//! scene (draw 1500) must give `none`. Each scene costs one short fit and
+//! one diagnosis (about two minutes on 2 cores), so CI runs one of each.
+//! The naming rate on fresh draws comes from the evaluation command,
+//! `cargo run --release -p dm-diagnose --example diagnose_eval`
+//! (docs/diagnose.md).
 
 use dm_diagnose::DiagnoseOptions;
 use dm_diagnose::evaluation::{SceneVariant, quick_fit_options, run_scene};
 
-/// The draw the test hides (an evaluation seed whose effect the
-/// evaluation in docs/RESULTS.md named correctly).
+/// The known scenes: a draw whose hidden effect the diagnosis names, and a
+/// null draw (seeds of the development set, not the reported fresh ones).
 const HIDDEN_SEED: u64 = 1000;
 const NULL_SEED: u64 = 1500;
 

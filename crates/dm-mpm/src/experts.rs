@@ -1,7 +1,8 @@
 //! The three constitutive experts of the mixture (method.md §3): first
 //! Piola-Kirchhoff stress P(F) for given Lamé parameters.
 
-use crate::real::{Mat3, Real};
+use crate::lanes::{Lanes, M3};
+use crate::real::{Mat3, Real, from_lanes, to_lanes};
 use crate::svd::polar_rotation;
 
 /// Index of each expert in the per-particle weight triple.
@@ -107,27 +108,84 @@ pub fn inverse_transpose<T: Real>(f: &Mat3<T>, j: T) -> Mat3<T> {
 /// cheaper and defined for any F with J > 0.
 #[inline]
 pub fn mixture_kirchhoff<T: Real>(f: &Mat3<T>, mu: T, lambda: T, weights: &[T; 3]) -> Mat3<T> {
+    let weights = weights.map(|w| (w != T::zero()).then_some(w));
+    let rotation = weights[1].map(|_| to_lanes(&polar_rotation(f)));
+    from_lanes(&mixture_kirchhoff_lanes(
+        &to_lanes(f),
+        mu,
+        lambda,
+        &weights,
+        rotation.as_ref(),
+    ))
+}
+
+/// [`mixture_kirchhoff`] of every lane. Experts whose weight is `None`
+/// are skipped; `rotation` (the polar rotation of `f`) is needed when the
+/// fixed-corotated expert is weighted.
+#[inline(always)]
+pub fn mixture_kirchhoff_lanes<L: Lanes>(
+    f: &M3<L>,
+    mu: L,
+    lambda: L,
+    weights: &[Option<L>; 3],
+    rotation: Option<&M3<L>>,
+) -> M3<L>
+where
+    L::Scalar: Real,
+{
+    let lit = |x: f64| L::broadcast(<L::Scalar as Real>::lit(x));
+    let one = lit(1.0);
     let ft = f.transpose();
-    let id = Mat3::<T>::identity();
-    let mut tau = Mat3::zeros();
     let j = f.determinant();
-    if weights[0] != T::zero() {
-        tau += ((f * ft - id) * mu + id * (lambda * j.ln())) * weights[0];
+    let mut tau: Option<M3<L>> = None;
+    let mut accumulate = |term: M3<L>| {
+        tau = Some(match tau {
+            Some(sum) => sum.add(&term),
+            None => term,
+        })
+    };
+    if let Some(w) = weights[0] {
+        accumulate(neo_hookean_kirchhoff_with_det(f, &ft, j, mu, lambda).scale(w));
     }
-    if weights[1] != T::zero() {
-        let r = polar_rotation(f);
-        tau += ((f - r) * ft * (mu + mu) + id * (lambda * (j - T::one()) * j)) * weights[1];
+    if let (Some(w), Some(r)) = (weights[1], rotation) {
+        let term = f
+            .sub(r)
+            .matmul(&ft)
+            .scale(mu + mu)
+            .add_diagonal(lambda * (j - one) * j);
+        accumulate(term.scale(w));
     }
-    if weights[2] != T::zero() {
-        let green = (ft * f - id) * T::lit(0.5);
-        tau += f * (green * (mu + mu) + id * (lambda * green.trace())) * ft * weights[2];
+    if let Some(w) = weights[2] {
+        let green = ft.matmul(f).add_diagonal(-one).scale(lit(0.5));
+        let inner = green.scale(mu + mu).add_diagonal(lambda * green.trace());
+        accumulate(f.matmul(&inner).matmul(&ft).scale(w));
     }
-    tau
+    tau.unwrap_or_else(|| M3::from_fn(|_, _| lit(0.0)))
 }
 
 /// Kirchhoff stress of the pure Neo-Hookean expert (the fast path).
 #[inline]
 pub fn neo_hookean_kirchhoff<T: Real>(f: &Mat3<T>, mu: T, lambda: T) -> Mat3<T> {
-    let id = Mat3::<T>::identity();
-    (f * f.transpose() - id) * mu + id * (lambda * f.determinant().ln())
+    from_lanes(&neo_hookean_kirchhoff_lanes(&to_lanes(f), mu, lambda))
+}
+
+/// [`neo_hookean_kirchhoff`] of every lane.
+#[inline(always)]
+pub fn neo_hookean_kirchhoff_lanes<L: Lanes>(f: &M3<L>, mu: L, lambda: L) -> M3<L>
+where
+    L::Scalar: Real,
+{
+    neo_hookean_kirchhoff_with_det(f, &f.transpose(), f.determinant(), mu, lambda)
+}
+
+#[inline(always)]
+fn neo_hookean_kirchhoff_with_det<L: Lanes>(f: &M3<L>, ft: &M3<L>, j: L, mu: L, lambda: L) -> M3<L>
+where
+    L::Scalar: Real,
+{
+    let one = L::broadcast(<L::Scalar as Real>::lit(1.0));
+    f.matmul(ft)
+        .add_diagonal(-one)
+        .scale(mu)
+        .add_diagonal(lambda * L::natural_log(j))
 }

@@ -110,9 +110,8 @@ pub fn fixed_corotated_kirchhoff_vjp<T: Real>(
 }
 
 #[inline]
-fn fixed_corotated_param_grads<T: Real>(f: &Mat3<T>, grad_tau: &Mat3<T>) -> (T, T) {
+fn fixed_corotated_param_grads<T: Real>(f: &Mat3<T>, r: &Mat3<T>, grad_tau: &Mat3<T>) -> (T, T) {
     let j = f.determinant();
-    let r = polar_rotation(f);
     (
         dot(grad_tau, &((f - r) * f.transpose())) * T::lit(2.0),
         grad_tau.trace() * (j - T::one()) * j,
@@ -182,6 +181,20 @@ pub fn mixture_kirchhoff_vjp<T: Real>(
     weights: &[T; 3],
     grad_tau: &Mat3<T>,
 ) -> KirchhoffGrads<T> {
+    mixture_kirchhoff_vjp_with_rotation(f, &polar_rotation(f), mu, lambda, weights, grad_tau)
+}
+
+/// [`mixture_kirchhoff_vjp`] given `R = polar_rotation(F)` (the forward
+/// pass's, saving its recomputation).
+#[inline]
+pub fn mixture_kirchhoff_vjp_with_rotation<T: Real>(
+    f: &Mat3<T>,
+    r: &Mat3<T>,
+    mu: T,
+    lambda: T,
+    weights: &[T; 3],
+    grad_tau: &Mat3<T>,
+) -> KirchhoffGrads<T> {
     let mut out = KirchhoffGrads {
         f: Mat3::zeros(),
         mu: T::zero(),
@@ -190,13 +203,18 @@ pub fn mixture_kirchhoff_vjp<T: Real>(
     };
     for (k, &w) in weights.iter().enumerate() {
         let (grad_mu, grad_lambda) = if w != T::zero() {
-            let expert = expert_kirchhoff_vjp(Expert::ALL[k], f, mu, lambda, grad_tau);
+            let expert = match Expert::ALL[k] {
+                Expert::FixedCorotated => {
+                    fixed_corotated_kirchhoff_vjp_with_rotation(f, r, mu, lambda, grad_tau)
+                }
+                expert => expert_kirchhoff_vjp(expert, f, mu, lambda, grad_tau),
+            };
             out.f += expert.f * w;
             (expert.mu, expert.lambda)
         } else {
             match k {
                 0 => neo_hookean_param_grads(f, grad_tau),
-                1 => fixed_corotated_param_grads(f, grad_tau),
+                1 => fixed_corotated_param_grads(f, r, grad_tau),
                 _ => st_venant_kirchhoff_param_grads(f, grad_tau),
             }
         };

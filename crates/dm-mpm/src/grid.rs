@@ -28,7 +28,20 @@ impl<T: Real> Grid<T> {
     pub fn clear(&mut self) {
         self.nodes.fill(T::Lane4::default());
     }
+
+    /// Zeroes the nodes of the box `[lo, hi)`.
+    pub fn clear_box(&mut self, (lo, hi): NodeBox) {
+        for i in lo[0]..hi[0] {
+            for j in lo[1]..hi[1] {
+                let row = self.index(i, j, 0);
+                self.nodes[row + lo[2]..row + hi[2]].fill(T::Lane4::default());
+            }
+        }
+    }
 }
+
+/// A box of grid nodes `[lo, hi)`.
+pub type NodeBox = ([usize; 3], [usize; 3]);
 
 /// The nodes of a [`Grid`] inside a box `[lo, hi)`, for a grid known to be
 /// zero outside it: a compact copy (the frame tape stores one per substep;

@@ -2,7 +2,7 @@
 //! viscous solve when η > 0 (`viscosity.rs`), then slip walls at the
 //! domain faces and the floor (with optional Coulomb friction).
 
-use crate::grid::Grid;
+use crate::grid::{Grid, NodeBox};
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
 use crate::viscosity::{ViscousSolver, viscosity_solve};
@@ -64,21 +64,41 @@ pub(crate) fn apply_boundaries<T: Real>(k: &Consts<T>, idx: [usize; 3], mut v: V
 /// Runs `f(idx, node)` on every node, slab-parallel.
 fn for_each_node<T: Real>(grid: &mut Grid<T>, f: impl Fn([usize; 3], &mut T::Lane4) + Sync) {
     let res = grid.res;
-    grid.nodes
+    for_each_node_in(grid, ([0; 3], [res; 3]), f);
+}
+
+/// Runs `f(idx, node)` on every node of the box `[lo, hi)`, slab-parallel.
+fn for_each_node_in<T: Real>(
+    grid: &mut Grid<T>,
+    (lo, hi): NodeBox,
+    f: impl Fn([usize; 3], &mut T::Lane4) + Sync,
+) {
+    let res = grid.res;
+    grid.nodes[lo[0] * res * res..hi[0] * res * res]
         .par_chunks_mut(res * res)
         .enumerate()
-        .for_each(|(i, slab)| {
-            for (jk, node) in slab.iter_mut().enumerate() {
-                f([i, jk / res, jk % res], node);
+        .for_each(|(slab_index, slab)| {
+            let i = lo[0] + slab_index;
+            for j in lo[1]..hi[1] {
+                for kk in lo[2]..hi[2] {
+                    f([i, j, kk], &mut slab[j * res + kk]);
+                }
             }
         });
 }
 
 /// The grid update; `viscous` holds the viscous solve's buffers (unused
-/// when η = 0).
-pub fn grid_update<T: Real>(k: &Consts<T>, grid: &mut Grid<T>, viscous: &mut ViscousSolver<T>) {
+/// when η = 0). `occupied`, when given, is a box outside which every node
+/// is empty: those nodes stay zero, so only the box is visited.
+pub fn grid_update<T: Real>(
+    k: &Consts<T>,
+    grid: &mut Grid<T>,
+    viscous: &mut ViscousSolver<T>,
+    occupied: Option<NodeBox>,
+) {
     if k.viscosity == T::zero() {
-        for_each_node(grid, |idx, node| {
+        let whole = ([0; 3], [grid.res; 3]);
+        for_each_node_in(grid, occupied.unwrap_or(whole), |idx, node| {
             let lanes = node.to_array();
             *node = match node_velocity(k, &lanes) {
                 Some(u) => {

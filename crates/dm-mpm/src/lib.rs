@@ -16,6 +16,7 @@ pub mod experts_backward;
 pub mod g2p;
 pub mod grid;
 pub mod grid_update;
+pub mod lanes;
 pub mod material;
 pub mod material_backward;
 pub mod neighbors;

@@ -12,7 +12,7 @@
 use crate::grid::{Grid, Stencil, offsets, stencil, stencil_base};
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
-use crate::stress::{ImpulseInputs, particle_impulse};
+use crate::stress::{CHUNK, ImpulseInputs, Impulses};
 use rayon::prelude::*;
 
 /// Block edge in cells; 4 gives enough blocks per colour for a few
@@ -31,21 +31,20 @@ pub struct BlockSchedule {
 }
 
 impl BlockSchedule {
-    pub fn block_of<T: Real>(&self, x: &Vec3<T>, k: &Consts<T>) -> u32 {
-        let g = (x - k.origin) * k.inv_dx;
-        let b = |c: T| (stencil_base(c, k.res) / BLOCK) as u32;
-        let n = self.blocks_per_axis as u32;
-        (b(g.x) * n + b(g.y)) * n + b(g.z)
-    }
-
     /// Buckets `x` by block. Slot order is kept inside each block.
     pub fn rebuild<T: Real>(&mut self, x: &[Vec3<T>], k: &Consts<T>) {
         self.blocks_per_axis = k.res.div_ceil(BLOCK);
         let n_blocks = self.blocks_per_axis.pow(3);
+        let blocks_per_axis = self.blocks_per_axis as u32;
         self.key.resize(x.len(), 0);
-        let this = &*self;
-        let keys: Vec<u32> = x.par_iter().map(|p| this.block_of(p, k)).collect();
-        self.key = keys;
+        self.key
+            .par_chunks_mut(CHUNK)
+            .zip(x.par_chunks(CHUNK))
+            .for_each(|(keys, xs)| {
+                for (key, p) in keys.iter_mut().zip(xs) {
+                    *key = block_index(p, k, blocks_per_axis);
+                }
+            });
         self.block_start.clear();
         self.block_start.resize(n_blocks + 1, 0);
         for &b in &self.key {
@@ -102,6 +101,15 @@ impl BlockSchedule {
         let b = block as usize;
         &self.order[self.block_start[b] as usize..self.block_start[b + 1] as usize]
     }
+}
+
+/// The block holding the stencil base of a particle at `x`.
+#[inline(always)]
+fn block_index<T: Real>(x: &Vec3<T>, k: &Consts<T>, blocks_per_axis: u32) -> u32 {
+    let g = (x - k.origin) * k.inv_dx;
+    let b = |c: T| (stencil_base(c, k.res) / BLOCK) as u32;
+    let n = blocks_per_axis;
+    (b(g.x) * n + b(g.y)) * n + b(g.z)
 }
 
 /// A raw pointer to grid nodes shared by the blocks of one colour.
@@ -169,17 +177,19 @@ impl BlockSchedule {
 }
 
 /// Scatters mass and momentum (`momentum + affine · (x_node − x_p)`) of
-/// every particle to its 27 stencil nodes. `grid` must be cleared.
+/// every particle to its 27 stencil nodes, given the impulses computed
+/// from `inputs`. `grid` must be cleared.
 pub fn p2g<T: Real>(
     k: &Consts<T>,
     schedule: &BlockSchedule,
     inputs: &ImpulseInputs<'_, T>,
+    impulses: &Impulses<T>,
     grid: &mut Grid<T>,
 ) {
     let mass = &inputs.particles.mass;
     let zero = T::zero();
     schedule.scatter(k, &inputs.particles.x, &mut grid.nodes, |p, st, nodes| {
-        let (a, momentum) = particle_impulse(k, inputs, p);
+        let (a, momentum) = (impulses.affine[p], impulses.momentum[p]);
         // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
         // built incrementally; each node then takes one FMA.
         let col = |c: usize| {

@@ -10,7 +10,7 @@
 use crate::grid::{gather_moments, stencil};
 use crate::real::{Lane4, Mat3, Real, Vec3};
 use crate::state::Consts;
-use crate::stress::{ImpulseInputs, particle_impulse};
+use crate::stress::ImpulseInputs;
 
 /// Adjoint of one particle's scatter: its affine matrix, momentum and the
 /// position (through the weights and node offsets), and the mass through
@@ -23,7 +23,8 @@ pub struct ScatterGrads<T> {
     pub mass: T,
 }
 
-/// VJP of particle `p`'s contribution to `p2g`, given the adjoint of the
+/// VJP of particle `p`'s contribution to `p2g` (its impulse `(a, q)`, see
+/// [`crate::stress::particle_impulse`]), given the adjoint of the
 /// pre-update grid `[P̄_x, P̄_y, P̄_z, m̄]` per node.
 ///
 /// All three sums come from the stencil moments of the node adjoints
@@ -37,9 +38,9 @@ pub fn p2g_particle_vjp<T: Real>(
     k: &Consts<T>,
     inputs: &ImpulseInputs<'_, T>,
     p: usize,
+    (a, q): (Mat3<T>, Vec3<T>),
     grad_grid: &[T::Lane4],
 ) -> ScatterGrads<T> {
-    let (a, q) = particle_impulse(k, inputs, p);
     let m = inputs.particles.mass[p];
     let st = stencil(&inputs.particles.x[p], &k.origin, k.inv_dx, k.res);
     let mo = gather_moments::<T>(&st, grad_grid, k.res);

@@ -1,6 +1,7 @@
 //! The float type the kernels are generic over: f32 for speed, f64 for
 //! finite-difference gradient checks and precision parity tests.
 
+use crate::lanes::{Lanes, M3};
 use nalgebra::{Matrix3, RealField, Vector3};
 use std::ops::{Add, AddAssign, Mul, Sub};
 
@@ -52,9 +53,21 @@ impl_lane4!(f32, wide::f32x4);
 impl_lane4!(f64, wide::f64x4);
 
 /// A scalar the simulator runs on (`f32` or `f64`).
-pub trait Real: RealField + Copy + Send + Sync + Default + std::fmt::Debug + 'static {
+pub trait Real:
+    RealField
+    + Copy
+    + Send
+    + Sync
+    + Default
+    + std::fmt::Debug
+    + Lanes<Scalar = Self, Mask = bool>
+    + 'static
+{
     /// Four lanes of this scalar (see [`Lane4`]).
     type Lane4: Lane4<Self>;
+    /// As many particles of this scalar as one AVX register holds (the
+    /// per-particle stress runs on these, see [`crate::lanes`]).
+    type Wide: Lanes<Scalar = Self>;
     /// Converts an `f64` constant (exact for f64, rounded for f32).
     fn lit(x: f64) -> Self;
     /// Converts to `f64` for reporting.
@@ -67,6 +80,7 @@ pub trait Real: RealField + Copy + Send + Sync + Default + std::fmt::Debug + 'st
 
 impl Real for f32 {
     type Lane4 = wide::f32x4;
+    type Wide = wide::f32x8;
     #[inline(always)]
     fn lit(x: f64) -> Self {
         x as f32
@@ -87,6 +101,7 @@ impl Real for f32 {
 
 impl Real for f64 {
     type Lane4 = wide::f64x4;
+    type Wide = wide::f64x4;
     #[inline(always)]
     fn lit(x: f64) -> Self {
         x
@@ -128,4 +143,16 @@ pub fn cast_vec<A: Real, B: Real>(v: &Vec3<A>) -> Vec3<B> {
 #[inline]
 pub fn cast_mat<A: Real, B: Real>(m: &Mat3<A>) -> Mat3<B> {
     m.map(|x| B::lit(x.to_f64()))
+}
+
+/// A matrix as a one-lane [`M3`].
+#[inline(always)]
+pub fn to_lanes<T: Real>(m: &Mat3<T>) -> M3<T> {
+    M3::from_fn(|r, c| m[(r, c)])
+}
+
+/// A one-lane [`M3`] as a matrix.
+#[inline(always)]
+pub fn from_lanes<T: Real>(m: &M3<T>) -> Mat3<T> {
+    Mat3::from_fn(|r, c| m.0[r][c])
 }

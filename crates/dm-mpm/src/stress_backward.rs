@@ -3,7 +3,10 @@
 //! `s = −dt V 4/dx²` and `a = a_ext − (k₁ + k₂|v|) v` (air drag).
 //! (Viscous damping is implicit, on the grid: `viscosity_backward.rs`.)
 
-use crate::experts_backward::{KirchhoffGrads, mixture_kirchhoff_vjp, neo_hookean_kirchhoff_vjp};
+use crate::experts_backward::{
+    KirchhoffGrads, mixture_kirchhoff_vjp, mixture_kirchhoff_vjp_with_rotation,
+    neo_hookean_kirchhoff_vjp,
+};
 use crate::real::{Mat3, Real, Vec3};
 use crate::state::Consts;
 use crate::stress::{ImpulseInputs, accel};
@@ -29,12 +32,14 @@ pub struct ImpulseGrads<T> {
 }
 
 /// VJP of [`crate::stress::particle_impulse`] for particle `p`, given the
-/// adjoints of its affine matrix and momentum.
+/// adjoints of its affine matrix and momentum, and (for a mixture) the
+/// polar rotation of its F.
 #[inline]
 pub fn particle_impulse_vjp<T: Real>(
     k: &Consts<T>,
     inputs: &ImpulseInputs<'_, T>,
     p: usize,
+    rotation: Option<&Mat3<T>>,
     grad_affine: &Mat3<T>,
     grad_momentum: &Vec3<T>,
 ) -> ImpulseGrads<T> {
@@ -56,7 +61,11 @@ pub fn particle_impulse_vjp<T: Real>(
             weights: [T::zero(); 3],
         }
     } else {
-        mixture_kirchhoff_vjp(f, mu, lambda, &material.expert_weights[p], &grad_tau)
+        let weights = &material.expert_weights[p];
+        match rotation {
+            Some(r) => mixture_kirchhoff_vjp_with_rotation(f, r, mu, lambda, weights, &grad_tau),
+            None => mixture_kirchhoff_vjp(f, mu, lambda, weights, &grad_tau),
+        }
     };
     let grad_accel = grad_momentum * (mass * k.dt);
     let mut grad_v = grad_momentum * mass;

@@ -7,7 +7,7 @@
 use crate::SimError;
 use crate::g2p::{ParticleFailure, g2p};
 use crate::g2p_backward::{GatherAdjoint, NodeVelocityGrads, ParticleGrads, g2p_backward};
-use crate::grid::{Grid, GridBox};
+use crate::grid::{Grid, GridBox, NodeBox};
 use crate::grid_update::grid_update;
 use crate::grid_update_backward::grid_update_backward;
 use crate::material::ParticleMaterial;
@@ -15,7 +15,7 @@ use crate::p2g::{BlockSchedule, p2g};
 use crate::p2g_backward::p2g_particle_vjp;
 use crate::real::{Mat3, Real, Vec3};
 use crate::state::{Consts, Particles};
-use crate::stress::ImpulseInputs;
+use crate::stress::{ImpulseInputs, Impulses};
 use crate::stress_backward::particle_impulse_vjp;
 use crate::viscosity::ViscousSolver;
 use rayon::prelude::*;
@@ -33,6 +33,9 @@ pub struct SubstepScratch<T: Real> {
     grad_pre: Vec<T::Lane4>,
     gather_bar: Vec<GatherAdjoint<T>>,
     viscous: ViscousSolver<T>,
+    impulses: Impulses<T>,
+    /// A box outside which `grid` is known to be zero (`None`: unknown).
+    grid_written: Option<NodeBox>,
 }
 
 impl<T: Real> SubstepScratch<T> {
@@ -46,6 +49,8 @@ impl<T: Real> SubstepScratch<T> {
             grad_pre: Vec::new(),
             gather_bar: Vec::new(),
             viscous: ViscousSolver::default(),
+            impulses: Impulses::default(),
+            grid_written: None,
         }
     }
 }
@@ -145,7 +150,12 @@ pub fn substep_forward<T: Real>(
         clock: std::time::Instant::now(),
     };
     scratch.schedule.rebuild(&particles.x, k);
-    scratch.grid.clear();
+    match scratch.grid_written.take() {
+        Some(written) => scratch.grid.clear_box(written),
+        None => scratch.grid.clear(),
+    }
+    let occupied = scratch.schedule.node_box(k.res);
+    scratch.grid_written = Some(occupied.unwrap_or(([0; 3], [0; 3])));
     laps.lap(|s| &mut s.schedule);
     let impulse = ImpulseInputs {
         particles,
@@ -153,12 +163,23 @@ pub fn substep_forward<T: Real>(
         pure_neo_hookean: inputs.pure_neo_hookean,
         external_accel: inputs.external_accel,
     };
-    p2g(k, &scratch.schedule, &impulse, &mut scratch.grid);
+    scratch.impulses.compute(k, &impulse, false);
+    p2g(
+        k,
+        &scratch.schedule,
+        &impulse,
+        &scratch.impulses,
+        &mut scratch.grid,
+    );
     if scratch.keep_pre_grid {
         scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
     }
     laps.lap(|s| &mut s.p2g);
-    grid_update(k, &mut scratch.grid, &mut scratch.viscous);
+    if k.viscosity != T::zero() {
+        // The viscous solve may write any node.
+        scratch.grid_written = None;
+    }
+    grid_update(k, &mut scratch.grid, &mut scratch.viscous, occupied);
     laps.lap(|s| &mut s.grid_update);
     let result = g2p(k, &scratch.grid, particles);
     laps.lap(|s| &mut s.g2p);
@@ -234,6 +255,7 @@ pub(crate) fn substep_backward_into<T: Real>(
         pure_neo_hookean: inputs.pure_neo_hookean,
         external_accel: inputs.external_accel,
     };
+    scratch.impulses.compute(k, &impulse, true);
     let schedule = match cache {
         Some(cache) => {
             match &cache.pre_grid {
@@ -245,13 +267,25 @@ pub(crate) fn substep_backward_into<T: Real>(
         None => {
             scratch.schedule.rebuild(&before.x, k);
             scratch.grid_pre.clear();
-            p2g(k, &scratch.schedule, &impulse, &mut scratch.grid_pre);
+            p2g(
+                k,
+                &scratch.schedule,
+                &impulse,
+                &scratch.impulses,
+                &mut scratch.grid_pre,
+            );
             &scratch.schedule
         }
     };
     let pre_grid = &scratch.grid_pre;
     scratch.grid.nodes.clone_from(&pre_grid.nodes);
-    grid_update(k, &mut scratch.grid, &mut scratch.viscous);
+    scratch.grid_written = None;
+    grid_update(
+        k,
+        &mut scratch.grid,
+        &mut scratch.viscous,
+        schedule.node_box(k.res),
+    );
 
     grads.resize(n);
     g2p_backward(
@@ -276,6 +310,7 @@ pub(crate) fn substep_backward_into<T: Real>(
     grads.gravity = grid_parameters.gravity;
     grads.friction = grid_parameters.friction;
     let grad_pre = &scratch.grad_pre;
+    let impulses = &scratch.impulses;
     let state = &mut grads.state;
     (
         state.x.par_iter_mut(),
@@ -292,8 +327,11 @@ pub(crate) fn substep_backward_into<T: Real>(
         .into_par_iter()
         .enumerate()
         .for_each(|(p, (gx, gv, gf, gc, gmu, glambda, gw, ga, ge, gm))| {
-            let scatter = p2g_particle_vjp(k, &impulse, p, grad_pre);
-            let g = particle_impulse_vjp(k, &impulse, p, &scatter.affine, &scatter.momentum);
+            let own = (impulses.affine[p], impulses.momentum[p]);
+            let scatter = p2g_particle_vjp(k, &impulse, p, own, grad_pre);
+            let rotation = impulses.rotation.get(p);
+            let g =
+                particle_impulse_vjp(k, &impulse, p, rotation, &scatter.affine, &scatter.momentum);
             // x and F also carry the gather's adjoint (g2p_backward); v
             // and C reach the substep's output only through P2G.
             *gx += scatter.x;

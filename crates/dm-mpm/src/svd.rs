@@ -6,7 +6,8 @@
 //! the condition number costs no useful precision, and the fixed small
 //! amount of work is several times faster than a general bidiagonal SVD.
 
-use crate::real::{Mat3, Real, Vec3};
+use crate::lanes::{Lanes, M3};
+use crate::real::{Mat3, Real, Vec3, from_lanes, to_lanes};
 
 /// `F = U diag(sigma) Vᵀ` with `U`, `V` proper rotations. `sigma` is sorted
 /// descending; the last entry is negative when `det F < 0`.
@@ -124,35 +125,59 @@ pub fn svd3<T: Real>(f: &Mat3<T>) -> Svd3<T> {
 /// simulation (singular values in [1/2, 2]) it reaches f32 round-off in
 /// 3–4 iterations, about three times faster than going through an SVD.
 /// Falls back to the SVD if the iteration meets a singular matrix.
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(a > b)` also catches NaN
 pub fn polar_rotation<T: Real>(f: &Mat3<T>) -> Mat3<T> {
-    let single = std::mem::size_of::<T>() == 4;
-    let tol = T::lit(if single { 1e-6 } else { 1e-14 });
+    let (r, degenerate) = polar_rotation_lanes::<T>(&to_lanes(f));
+    if degenerate {
+        let s = svd3(f);
+        return s.u * s.v.transpose();
+    }
+    from_lanes(&r)
+}
+
+/// [`polar_rotation`] of every lane. Lanes whose iteration met a singular
+/// matrix are flagged in the mask (their rotation is then meaningless and
+/// the caller takes the SVD's). Each lane stops when it converges, so its
+/// result does not depend on the other lanes.
+#[inline(always)]
+pub fn polar_rotation_lanes<L: Lanes>(f: &M3<L>) -> (M3<L>, L::Mask)
+where
+    L::Scalar: Real,
+{
+    let single = std::mem::size_of::<L::Scalar>() == 4;
+    let lit = |x: f64| L::broadcast(<L::Scalar as Real>::lit(x));
+    let tol = lit(if single { 1e-6 } else { 1e-14 });
     let max_iterations = if single { 6 } else { 12 };
-    let half = T::lit(0.5);
+    let (half, one, tiny) = (lit(0.5), lit(1.0), lit(1e-20));
     let mut x = *f;
+    let mut done = L::none();
+    let mut degenerate = L::none();
     for iteration in 0..max_iterations {
         let det = x.determinant();
-        if !(det.abs() > T::lit(1e-20)) {
-            let s = svd3(f);
-            return s.u * s.v.transpose();
-        }
-        let x_inv_t = crate::experts::inverse_transpose(&x, det);
+        // `!(|det| > tiny)` also catches NaN.
+        let singular = L::both(L::not(L::above(L::absolute(det), tiny)), L::not(done));
+        degenerate = L::either(degenerate, singular);
+        done = L::either(done, singular);
+        let x_inv_t = x.cofactor().scale(one / det);
         // Scaling only pays while far from orthogonal (the first steps).
         let next = if iteration < 2 {
-            let gamma = (x_inv_t.norm_squared() / x.norm_squared()).sqrt().sqrt();
-            (x * gamma + x_inv_t / gamma) * half
+            let gamma = L::square_root(L::square_root(x_inv_t.norm_squared() / x.norm_squared()));
+            x.scale(gamma).add(&x_inv_t.scale(one / gamma)).scale(half)
         } else {
-            (x + x_inv_t) * half
+            x.add(&x_inv_t).scale(half)
         };
         // Near convergence |det X - 1| tracks the remaining error quadratically.
-        let converged = iteration >= 2 && (det - T::one()).abs() <= tol;
-        x = next;
-        if converged {
+        let converged = if iteration >= 2 {
+            L::at_most(L::absolute(det - one), tol)
+        } else {
+            L::none()
+        };
+        x = M3::choose(done, &x, &next);
+        done = L::either(done, converged);
+        if L::all(done) {
             break;
         }
     }
-    x
+    (x, degenerate)
 }
 
 /// Cheap sufficient test that all singular values of `F` lie in

@@ -246,3 +246,77 @@ fn accessors_speak_in_the_callers_particle_order() {
         }
     }
 }
+
+/// P2G takes every particle's impulse from the SIMD pass
+/// (`Impulses::compute`, several particles per register); each must be
+/// bitwise what the scalar `particle_impulse` gives, whatever its
+/// neighbours in the register: mixed weights (some experts zero in some
+/// lanes only), a particle count that leaves a partial register, the
+/// pure Neo-Hookean fast path, and the polar rotations the backward pass
+/// reads.
+#[test]
+fn simd_impulses_equal_the_scalar_impulse_bitwise() {
+    simd_impulses_equal_scalar::<f32>();
+    simd_impulses_equal_scalar::<f64>();
+}
+
+fn simd_impulses_equal_scalar<T: Real>() {
+    use dm_mpm::real::cast_mat;
+    use dm_mpm::state::{Consts, Particles};
+    use dm_mpm::stress::{ImpulseInputs, Impulses, particle_impulse};
+    use dm_mpm::svd::polar_rotation;
+    let mut r = rng(5);
+    let n = 8 * 40 + 3;
+    let config = floor_config();
+    let k = Consts::<T>::new(&config, 1e-3);
+    let positions: Vec<_> = (0..n)
+        .map(|_| dm_mpm::real::vec3::<T>([0; 3].map(|_| uniform(&mut r, -0.05, 0.05))))
+        .collect();
+    let mut particles = Particles::at_rest(&positions, T::lit(1e-6), T::lit(1e3));
+    for p in 0..n {
+        particles.f[p] = cast_mat(&common::random_f(&mut r, 0.6, 1.6));
+        particles.c[p] = cast_mat(&Mat3::<f64>::from_fn(|_, _| uniform(&mut r, -1.0, 1.0)));
+        particles.v[p] = dm_mpm::real::vec3([0; 3].map(|_| uniform(&mut r, -0.3, 0.3)));
+    }
+    let youngs: Vec<f64> = (0..n).map(|_| uniform(&mut r, 1e4, 1e6)).collect();
+    let poisson: Vec<f64> = (0..n).map(|_| uniform(&mut r, 0.1, 0.45)).collect();
+    // Particle p weights the experts whose bits are set in p % 8.
+    let weights: Vec<[f64; 3]> = (0..n)
+        .map(|p| {
+            [0, 1, 2].map(|e| {
+                if (p % 8) >> e & 1 == 1 {
+                    0.2 + 0.1 * e as f64
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect();
+    for pure in [false, true] {
+        let material = dm_mpm::ParticleMaterial::<T>::from_fields(&youngs, &poisson, &weights);
+        let inputs = ImpulseInputs {
+            particles: &particles,
+            material: &material,
+            pure_neo_hookean: pure,
+            external_accel: None,
+        };
+        let mut impulses = Impulses::default();
+        impulses.compute(&k, &inputs, true);
+        for p in 0..n {
+            let (a, q) = particle_impulse(&k, &inputs, p);
+            assert_eq!(
+                impulses.affine[p], a,
+                "affine of particle {p}, pure NH {pure}"
+            );
+            assert_eq!(impulses.momentum[p], q, "momentum of particle {p}");
+            if !pure {
+                assert_eq!(
+                    impulses.rotation[p],
+                    polar_rotation(&particles.f[p]),
+                    "rotation {p}"
+                );
+            }
+        }
+        assert_eq!(impulses.rotation.is_empty(), pure);
+    }
+}

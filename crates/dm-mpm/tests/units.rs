@@ -696,7 +696,7 @@ fn updated_velocity(config: &PhysicsConfig, idx: [usize; 3], v: [f64; 3]) -> [f6
     let n = grid.index(idx[0], idx[1], idx[2]);
     let m = 2.0;
     grid.nodes[n] = Lane4::from_array([v[0] * m, v[1] * m, v[2] * m, m]);
-    grid_update(&k, &mut grid, &mut ViscousSolver::default());
+    grid_update(&k, &mut grid, &mut ViscousSolver::default(), None);
     let out = grid.nodes[n].to_array();
     assert_eq!(out[3], m, "mass is kept");
     [out[0], out[1], out[2]]
@@ -769,7 +769,7 @@ fn grid_update_applies_walls_floor_and_friction() {
     let n = grid.index(8, 8, 8);
     let m = 0.5 * k.empty_node_mass;
     grid.nodes[n] = Lane4::from_array([m, m, m, m]);
-    grid_update(&k, &mut grid, &mut ViscousSolver::default());
+    grid_update(&k, &mut grid, &mut ViscousSolver::default(), None);
     assert_eq!(grid.nodes[n].to_array(), [0.0; 4]);
 }
 

@@ -25,10 +25,12 @@ use rayon::prelude::*;
 pub struct SubstepScratch<T: Real> {
     pub schedule: BlockSchedule,
     pub grid: Grid<T>,
-    /// The grid right after P2G: written by the backward pass, and by the
-    /// forward pass when `keep_pre_grid` is set (for the tape).
+    /// The grid right after P2G, written by the backward pass.
     pub(crate) grid_pre: Grid<T>,
+    /// Whether the forward pass keeps what its backward twin would
+    /// recompute (for the tape, see [`SubstepScratch::take_cache`]).
     pub(crate) keep_pre_grid: bool,
+    kept: Option<SubstepCache<T>>,
     grad_u: NodeVelocityGrads<T>,
     grad_pre: Vec<T::Lane4>,
     gather_bar: Vec<GatherAdjoint<T>>,
@@ -45,6 +47,7 @@ impl<T: Real> SubstepScratch<T> {
             grid: Grid::new(res),
             grid_pre: Grid::new(res),
             keep_pre_grid: false,
+            kept: None,
             grad_u: Vec::new(),
             grad_pre: Vec::new(),
             gather_bar: Vec::new(),
@@ -67,17 +70,12 @@ pub(crate) struct SubstepCache<T: Real> {
 }
 
 impl<T: Real> SubstepScratch<T> {
-    /// Copies out what the last [`substep_forward`] kept (it must have run
-    /// with `keep_pre_grid` set).
+    /// What the last [`substep_forward`] kept (it must have run with
+    /// `keep_pre_grid` set).
     pub(crate) fn take_cache(&mut self) -> SubstepCache<T> {
-        let res = self.grid_pre.res;
-        SubstepCache {
-            pre_grid: self
-                .schedule
-                .node_box(res)
-                .map(|(lo, hi)| GridBox::capture(&self.grid_pre, lo, hi)),
-            schedule: self.schedule.clone(),
-        }
+        self.kept
+            .take()
+            .expect("take_cache follows a forward substep run with keep_pre_grid")
     }
 }
 
@@ -172,7 +170,10 @@ pub fn substep_forward<T: Real>(
         &mut scratch.grid,
     );
     if scratch.keep_pre_grid {
-        scratch.grid_pre.nodes.clone_from(&scratch.grid.nodes);
+        scratch.kept = Some(SubstepCache {
+            pre_grid: occupied.map(|(lo, hi)| GridBox::capture(&scratch.grid, lo, hi)),
+            schedule: scratch.schedule.clone(),
+        });
     }
     laps.lap(|s| &mut s.p2g);
     if k.viscosity != T::zero() {

@@ -28,6 +28,9 @@ const TRUTH_GRID: usize = 48;
 /// reproduce (docs/RESULTS.md).
 pub(crate) const WALL_ROOM_M: f64 = 0.1;
 const TRUTH_SUBSTEPS_PER_FRAME: usize = 84;
+/// The truth's Courant number: finer than the model's
+/// ([`dm_mpm::config::DEFAULT_CFL`]), like its grid and substep.
+const TRUTH_CFL: f64 = 0.3;
 
 /// Expert mix (Neo-Hookean, fixed corotated, StVK) of a `--homogeneous` truth.
 pub const HOMOGENEOUS_EXPERT_WEIGHTS: [f64; 3] = [0.3, 0.6, 0.1];
@@ -367,6 +370,7 @@ pub(crate) fn truth_physics<'a>(
     physics.grid_res = grid;
     physics.dt = 1.0 / FPS / TRUTH_SUBSTEPS_PER_FRAME as f64;
     physics.substeps_per_frame = TRUTH_SUBSTEPS_PER_FRAME;
+    physics.cfl = Some(TRUTH_CFL);
     let (origin, size) =
         cube_domain_containing(lo, hi, grid, physics.wall_cells, physics.position_clip);
     physics.domain_origin = origin;

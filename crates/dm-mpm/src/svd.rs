@@ -184,14 +184,27 @@ where
 /// `[lo, hi]`: Gershgorin discs of FᵀF inside `[lo², hi²]`.
 #[inline]
 pub fn singular_values_surely_within<T: Real>(f: &Mat3<T>, lo: T, hi: T) -> bool {
-    let c = f.transpose() * f;
+    singular_values_surely_within_lanes(&to_lanes(f), lo, hi)
+}
+
+/// [`singular_values_surely_within`] of every lane.
+#[inline(always)]
+pub fn singular_values_surely_within_lanes<L: Lanes>(f: &M3<L>, lo: L, hi: L) -> L::Mask {
+    let c = f.transpose().matmul(f).0;
     let (lo2, hi2) = (lo * lo, hi * hi);
-    (0..3).all(|i| {
-        let r = (0..3)
-            .filter(|&j| j != i)
-            .fold(T::zero(), |acc, j| acc + c[(i, j)].abs());
-        c[(i, i)] - r >= lo2 && c[(i, i)] + r <= hi2
-    })
+    let abs = L::absolute;
+    let radius = [
+        abs(c[0][1]) + abs(c[0][2]),
+        abs(c[1][0]) + abs(c[1][2]),
+        abs(c[2][0]) + abs(c[2][1]),
+    ];
+    let mut inside = L::not(L::none());
+    for i in 0..3 {
+        let above_lo = L::at_most(lo2, c[i][i] - radius[i]);
+        let below_hi = L::at_most(c[i][i] + radius[i], hi2);
+        inside = L::both(inside, L::both(above_lo, below_hi));
+    }
+    inside
 }
 
 /// Eigenvalues of a symmetric 3x3 matrix in closed form (trigonometric

@@ -130,16 +130,16 @@ pub struct StencilNodes<'a, L> {
 }
 
 impl<L> StencilNodes<'_, L> {
-    /// The node at stencil offset (i, j, k), each in 0..3.
+    /// The three nodes at stencil offsets (i, j, 0..3), contiguous in the
+    /// grid (z is the fastest axis).
     #[inline(always)]
-    pub fn node(&mut self, i: usize, j: usize, k: usize) -> &mut L {
-        assert!(i < 3 && j < 3 && k < 3, "stencil offset out of range");
-        let index =
-            ((self.base[0] + i) * self.res + self.base[1] + j) * self.res + self.base[2] + k;
-        // SAFETY: bases are clamped to [0, res-3], so index < res³ (the
+    pub fn row(&mut self, i: usize, j: usize) -> &mut [L; 3] {
+        assert!(i < 3 && j < 3, "stencil offset out of range");
+        let index = ((self.base[0] + i) * self.res + self.base[1] + j) * self.res + self.base[2];
+        // SAFETY: bases are clamped to [0, res-3], so index + 2 < res³ (the
         // length checked in `scatter`); concurrent tasks own disjoint
         // node sets (module docs) and a task handles one particle at a time.
-        unsafe { &mut *self.nodes.0.add(index) }
+        unsafe { &mut *self.nodes.0.add(index).cast::<[L; 3]>() }
     }
 }
 
@@ -222,10 +222,10 @@ pub fn scatter_affine<T: Real>(
             let wij = st.w[0][i] * st.w[1][j];
             let qij = ay.mul_add(T::Lane4::splat(off[j]), qi);
             let q = [qij, qij + az, qij + az + az];
+            let row = nodes.row(i, j);
             for kk in 0..3 {
                 let w = T::Lane4::splat(wij * st.w[2][kk]);
-                let node = nodes.node(i, j, kk);
-                *node = w.mul_add(q[kk], *node);
+                row[kk] = w.mul_add(q[kk], row[kk]);
             }
         }
     }

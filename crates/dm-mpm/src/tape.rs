@@ -138,6 +138,14 @@ impl<T: Real> World<T> {
         tape: &FrameTape<T>,
         grad_after: &ParticleGrads<T>,
     ) -> Result<FrameGrads<T>, SimError> {
+        crate::world::on_worker(|| self.backward_frame_here(tape, grad_after))
+    }
+
+    fn backward_frame_here(
+        &mut self,
+        tape: &FrameTape<T>,
+        grad_after: &ParticleGrads<T>,
+    ) -> Result<FrameGrads<T>, SimError> {
         let n = self.particle_count();
         if grad_after.x.len() != n {
             return Err(SimError::InvalidInput(

@@ -326,6 +326,10 @@ impl<T: Real> World<T> {
 
     /// One MPM substep with the anchors where they are now.
     pub fn substep(&mut self) -> Result<(), SimError> {
+        on_worker(|| self.substep_here())
+    }
+
+    fn substep_here(&mut self) -> Result<(), SimError> {
         let k = self.consts;
         let clock = std::time::Instant::now();
         let has_actuators = self.update_external_accel();
@@ -421,6 +425,16 @@ impl<T: Real> World<T> {
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
         active: &[bool],
+        tape: Option<&mut FrameTape<T>>,
+    ) -> Result<(), SimError> {
+        on_worker(|| self.advance_frame_here(anchors_from, anchors_to, active, tape))
+    }
+
+    fn advance_frame_here(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
         mut tape: Option<&mut FrameTape<T>>,
     ) -> Result<(), SimError> {
         let m = anchors_from.len();
@@ -471,7 +485,7 @@ impl<T: Real> World<T> {
                 tape.record(&self.particles, &self.anchor_x, &self.anchor_v);
                 self.scratch.keep_pre_grid = tape.stores_grids();
             }
-            let result = self.substep();
+            let result = self.substep_here();
             self.scratch.keep_pre_grid = false;
             result?;
             if let Some(tape) = taped
@@ -487,5 +501,18 @@ impl<T: Real> World<T> {
     /// Advances one frame with no anchors.
     pub fn step_frame_free(&mut self) -> Result<(), SimError> {
         self.step_frame(&[], &[], &[])
+    }
+}
+
+/// Runs `op` on a worker of the current rayon pool (directly when already
+/// on one). A frame's substeps have a dozen parallel stages each; called
+/// from outside the pool, every stage would hand its work to the pool and
+/// sleep until it is done (a futex wake and wait per stage), where on a
+/// worker the stages fork and join among the workers.
+pub fn on_worker<R: Send>(op: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() {
+        op()
+    } else {
+        rayon::scope(|_| op())
     }
 }

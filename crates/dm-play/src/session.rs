@@ -100,8 +100,8 @@ pub struct PlayArgs {
     /// the CFL bound allows; with --exact the model's).
     #[arg(long)]
     pub substeps: Option<usize>,
-    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5; the
-    /// fit uses 0.3).
+    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5, as the
+    /// fit's).
     #[arg(long)]
     pub cfl: Option<f64>,
     /// Simulate exactly as the fit did (the model's grid, domain, particles

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene test bench clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene test bench bench-fit bench-peers clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -155,6 +155,42 @@ bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts moce
 	@if [ -f $(OUT)/model/model.json ]; then ./target/release/dm-bench play --model $(OUT)/model; \
 	  else echo "dm-bench play skipped: no demo model in $(OUT)/model (make demo first)"; fi
+
+# The demo's fit timed end to end, three runs (docs/BENCHMARKS.md): fit_s
+# is fit_report.json's wall time; the scene is the demo's (made if missing).
+bench-fit: build
+	@[ -f $(OUT)/scene/bundle.json ] || { mkdir -p $(OUT) && ./target/release/dm-synth --preset $(PRESET) --seed $(SEED) --out $(OUT)/scene --truth $(OUT)/scene.truth.json; }
+	@for run in 1 2 3; do \
+	  rm -rf $(OUT)/bench-fit; \
+	  ./target/release/dm-fit $(OUT)/scene --out $(OUT)/bench-fit $(DEMO_FIT) > $(OUT)/bench-fit.log 2>&1 || { cat $(OUT)/bench-fit.log; exit 1; }; \
+	  python3 -c 'import json; r=json.load(open("$(OUT)/bench-fit/fit_report.json")); print("fit_s %.1f  (E %.3g Pa, final loss %.3g)" % (r["seconds"], r["material"]["E_median_pa"], r["loss"]["final"]))'; \
+	done
+
+# Peer benchmarks (benches/peers/README.md): the reference block of
+# `dm-bench mpm` in NVIDIA Warp and Taichi on the CPU, beside dm-bench
+# itself when it is built; one JSON line per run, the frameworks' own
+# messages in $(PEERS_LOG). Their venv is separate from the setup venv.
+PEERS_VENV ?= .venv-peers
+PEERS_PYTHON ?= python3
+PEERS_THREADS ?= 2
+PEERS_SUBSTEPS ?= 400
+PEERS_LOG ?= out/bench-peers.log
+PEERS = $(PEERS_VENV)/bin/python benches/peers/mpm_peers.py --threads $(PEERS_THREADS)
+
+$(PEERS_VENV)/.installed: benches/peers/requirements.txt
+	@command -v $(PEERS_PYTHON) >/dev/null || { echo "error: $(PEERS_PYTHON) not found (needed for the peer benchmarks)" >&2; exit 1; }
+	$(PEERS_PYTHON) -m venv $(PEERS_VENV)
+	$(PEERS_VENV)/bin/pip install --quiet --disable-pip-version-check -r benches/peers/requirements.txt
+	@touch $@
+
+bench-peers: $(PEERS_VENV)/.installed
+	@mkdir -p $(dir $(PEERS_LOG)) && : > $(PEERS_LOG)
+	@for peer in deformmaster warp "taichi --p2g parallel" "taichi --p2g serial"; do \
+	  $(PEERS) --peer $$peer --particles 8000 --experts moce --substeps $(PEERS_SUBSTEPS) 2>>$(PEERS_LOG); \
+	  $(PEERS) --peer $$peer --particles 8000 --experts nh --substeps $(PEERS_SUBSTEPS) 2>>$(PEERS_LOG); \
+	  $(PEERS) --peer $$peer --particles 100000 --experts nh --substeps $(PEERS_SUBSTEPS) 2>>$(PEERS_LOG); \
+	  $(PEERS) --peer $$peer --particles 10000 --grad-window 20 2>>$(PEERS_LOG); \
+	done
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV)

@@ -10,6 +10,7 @@
 use crate::material_fit::{FitError, train_loss};
 use dm_bundle::Bundle;
 use dm_model::WorldModel;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Multiplicative step on E and additive step on ν probed on each side.
@@ -62,10 +63,21 @@ pub fn material_sensitivity(
         )?;
         Ok(loss / base_loss - 1.0)
     };
+    // Four independent rollouts, side by side (each is deterministic).
+    let moves = [
+        (YOUNGS_FACTORS[0], 0.0),
+        (YOUNGS_FACTORS[1], 0.0),
+        (1.0, -POISSON_SHIFT),
+        (1.0, POISSON_SHIFT),
+    ];
+    let changes = moves
+        .par_iter()
+        .map(|&(factor, shift)| relative(factor, shift))
+        .collect::<Result<Vec<f64>, FitError>>()?;
     Ok(MaterialSensitivity {
-        youngs_down: relative(YOUNGS_FACTORS[0], 0.0)?,
-        youngs_up: relative(YOUNGS_FACTORS[1], 0.0)?,
-        poisson_down: relative(1.0, -POISSON_SHIFT)?,
-        poisson_up: relative(1.0, POISSON_SHIFT)?,
+        youngs_down: changes[0],
+        youngs_up: changes[1],
+        poisson_down: changes[2],
+        poisson_up: changes[3],
     })
 }

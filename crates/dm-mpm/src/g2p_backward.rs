@@ -70,6 +70,7 @@ pub fn g2p_backward<T: Real>(
     grad_in: &mut ParticleGrads<T>,
     grad_u: &mut NodeVelocityGrads<T>,
     gather_bar: &mut Vec<GatherAdjoint<T>>,
+    scatter_spare: &mut Vec<Vec<T::Lane4>>,
 ) {
     let n = x.len();
     let res = k.res;
@@ -126,13 +127,13 @@ pub fn g2p_backward<T: Real>(
             };
         });
 
-    // Pass 2 (scatter, deterministic colouring): ū_i += w (ṽ̄ + B̄ (x_i − x_p)),
+    // Pass 2 (scatter, deterministic parts): ū_i += w (ṽ̄ + B̄ (x_i − x_p)),
     // an affine field in the node offset: ṽ̄ − B̄ frac dx + B̄ dx (i, j, k).
     grad_u.clear();
     grad_u.resize(res * res * res, T::Lane4::default());
     let zero = T::zero();
     let lanes = |v: Vec3<T>| T::Lane4::from_array([v.x, v.y, v.z, zero]);
-    schedule.scatter(k, x, grad_u, |p, st, nodes| {
+    schedule.scatter(k, x, grad_u, scatter_spare, |p, st, nodes| {
         let GatherAdjoint { v_tilde, b } = gather_bar[p];
         let q0 = lanes(v_tilde - b * (st.frac * k.dx));
         let cols = [0, 1, 2].map(|c| lanes(b.column(c) * k.dx));

@@ -1,13 +1,13 @@
 //! Stage 2: particle-to-grid scatter of mass and APIC momentum.
 //!
 //! Parallel and deterministic without atomics: particles are bucketed by
-//! the grid block (BLOCK³ cells) holding their stencil base. A particle in
-//! block b writes only nodes inside b extended by 2 cells, so blocks whose
-//! indices have the same parity on every axis ("colour") never write the
-//! same node when BLOCK >= 2. Colours run one after another; blocks of one
-//! colour run in parallel; inside a block particles run in slot order. Each
-//! node therefore sums its contributions in an order that does not depend
-//! on the number of threads: results are bitwise identical for any pool.
+//! the grid block (BLOCK³ cells) holding their stencil base, which gives a
+//! spatially coherent order. That order is cut into [`SCATTER_PARTS`]
+//! ranges of equal size; the parts scatter side by side, each into a grid
+//! of its own and in order, and the grids are then summed in part order.
+//! Each node therefore sums its contributions in an order that does not
+//! depend on the number of threads: results are bitwise identical for any
+//! pool.
 
 use crate::grid::{Grid, Stencil, offsets, stencil, stencil_base};
 use crate::real::{Lane4, Real, Vec3};
@@ -15,9 +15,14 @@ use crate::state::Consts;
 use crate::stress::{CHUNK, ImpulseInputs, Impulses};
 use rayon::prelude::*;
 
-/// Block edge in cells; 4 gives enough blocks per colour for a few
-/// threads at 32³ while keeping each block's particles cache resident.
+/// Block edge in cells: the bucketing's granularity.
 pub const BLOCK: usize = 4;
+
+/// Particle ranges scattered side by side, each into its own grid: a fixed
+/// number, so the sums do not depend on the thread count. Four balance two
+/// threads (and four) evenly; each part beyond the first costs a grid
+/// buffer and one add per node of the occupied box.
+pub const SCATTER_PARTS: usize = 4;
 
 /// Particles bucketed by block, rebuilt every substep (a counting sort).
 #[derive(Clone, Debug, Default)]
@@ -27,7 +32,8 @@ pub struct BlockSchedule {
     /// `block_start[b]..block_start[b + 1]` indexes `order` for block b.
     block_start: Vec<u32>,
     order: Vec<u32>,
-    colours: [Vec<u32>; 8],
+    /// Blocks holding at least one particle.
+    occupied: Vec<u32>,
 }
 
 impl BlockSchedule {
@@ -60,17 +66,11 @@ impl BlockSchedule {
             self.order[*c as usize] = p as u32;
             *c += 1;
         }
-        let n = self.blocks_per_axis;
-        for colour in &mut self.colours {
-            colour.clear();
-        }
+        self.occupied.clear();
         for b in 0..n_blocks {
-            if self.block_start[b] == self.block_start[b + 1] {
-                continue;
+            if self.block_start[b] != self.block_start[b + 1] {
+                self.occupied.push(b as u32);
             }
-            let (bx, by, bz) = (b / (n * n), (b / n) % n, b % n);
-            let colour = (bx & 1) << 2 | (by & 1) << 1 | (bz & 1);
-            self.colours[colour].push(b as u32);
         }
     }
 
@@ -85,7 +85,7 @@ impl BlockSchedule {
         let n = self.blocks_per_axis;
         let mut lo = [usize::MAX; 3];
         let mut hi = [0; 3];
-        for &b in self.colours.iter().flatten() {
+        for &b in &self.occupied {
             let b = b as usize;
             let block = [b / (n * n), (b / n) % n, b % n];
             for a in 0..3 {
@@ -95,11 +95,6 @@ impl BlockSchedule {
             }
         }
         (lo[0] < hi[0]).then_some((lo, hi))
-    }
-
-    fn particles_of(&self, block: u32) -> &[u32] {
-        let b = block as usize;
-        &self.order[self.block_start[b] as usize..self.block_start[b + 1] as usize]
     }
 }
 
@@ -112,16 +107,11 @@ fn block_index<T: Real>(x: &Vec3<T>, k: &Consts<T>, blocks_per_axis: u32) -> u32
     (b(g.x) * n + b(g.y)) * n + b(g.z)
 }
 
-/// A raw pointer to grid nodes shared by the blocks of one colour.
+/// A raw pointer to the grid nodes of one scatter part.
 #[derive(Debug)]
 struct NodesPtr<L>(*mut L);
-// SAFETY: the colouring argument in the module docs guarantees that tasks
-// running concurrently write disjoint nodes.
-unsafe impl<L> Send for NodesPtr<L> {}
-unsafe impl<L> Sync for NodesPtr<L> {}
 
-/// Write access to the 27 nodes of one particle's stencil, and only those:
-/// the one place where the colouring's disjointness is relied upon.
+/// Write access to the 27 nodes of one particle's stencil, and only those.
 #[derive(Debug)]
 pub struct StencilNodes<'a, L> {
     nodes: &'a NodesPtr<L>,
@@ -137,41 +127,70 @@ impl<L> StencilNodes<'_, L> {
         assert!(i < 3 && j < 3, "stencil offset out of range");
         let index = ((self.base[0] + i) * self.res + self.base[1] + j) * self.res + self.base[2];
         // SAFETY: bases are clamped to [0, res-3], so index + 2 < res³ (the
-        // length checked in `scatter`); concurrent tasks own disjoint
-        // node sets (module docs) and a task handles one particle at a time.
+        // length checked in `scatter`); each part owns its grid, and
+        // handles one particle at a time.
         unsafe { &mut *self.nodes.0.add(index).cast::<[L; 3]>() }
     }
 }
 
 impl BlockSchedule {
     /// Runs `body(p, stencil, nodes)` for every particle, letting it
-    /// accumulate into its own stencil nodes: colour by colour, blocks of a
-    /// colour in parallel, particles of a block in slot order — so every
+    /// accumulate into its own stencil nodes of `nodes`: the particles'
+    /// block order in [`SCATTER_PARTS`] ranges side by side, each range
+    /// into its own grid (`nodes`, then the `spare` grids, which are kept
+    /// zero between calls), summed into `nodes` in part order — so every
     /// node sums in an order independent of the thread count.
-    pub fn scatter<T: Real, L: Send + Sync>(
+    pub fn scatter<T: Real, L: Copy + Default + std::ops::AddAssign + Send + Sync>(
         &self,
         k: &Consts<T>,
         x: &[Vec3<T>],
         nodes: &mut [L],
+        spare: &mut Vec<Vec<L>>,
         body: impl Fn(usize, &Stencil<T>, &mut StencilNodes<'_, L>) + Sync,
     ) {
         let res = k.res;
-        assert_eq!(nodes.len(), res * res * res, "grid size mismatch");
-        let ptr = NodesPtr(nodes.as_mut_ptr());
-        let ptr = &ptr;
-        for colour in &self.colours {
-            colour.par_iter().for_each(|&block| {
-                for &p in self.particles_of(block) {
-                    let p = p as usize;
-                    let st = stencil(&x[p], &k.origin, k.inv_dx, res);
-                    let mut writer = StencilNodes {
-                        nodes: ptr,
-                        res,
-                        base: st.base,
-                    };
-                    body(p, &st, &mut writer);
+        let len = res * res * res;
+        assert_eq!(nodes.len(), len, "grid size mismatch");
+        let Some((lo, hi)) = self.node_box(res) else {
+            return;
+        };
+        spare.resize_with(SCATTER_PARTS - 1, Vec::new);
+        for grid in spare.iter_mut() {
+            if grid.len() != len {
+                grid.clear();
+                grid.resize(len, L::default());
+            }
+        }
+        let n = self.order.len();
+        let mut grids: Vec<&mut [L]> = std::iter::once(nodes)
+            .chain(spare.iter_mut().map(|grid| &mut grid[..]))
+            .collect();
+        grids.par_iter_mut().enumerate().for_each(|(part, grid)| {
+            let ptr = NodesPtr(grid.as_mut_ptr());
+            for &p in &self.order[part * n / SCATTER_PARTS..(part + 1) * n / SCATTER_PARTS] {
+                let p = p as usize;
+                let st = stencil(&x[p], &k.origin, k.inv_dx, res);
+                let mut writer = StencilNodes {
+                    nodes: &ptr,
+                    res,
+                    base: st.base,
+                };
+                body(p, &st, &mut writer);
+            }
+        });
+        let [main, rest @ ..] = &mut grids[..] else {
+            unreachable!("at least one scatter part")
+        };
+        for i in lo[0]..hi[0] {
+            for j in lo[1]..hi[1] {
+                let row = (i * res + j) * res;
+                for node in row + lo[2]..row + hi[2] {
+                    for grid in rest.iter_mut() {
+                        main[node] += grid[node];
+                        grid[node] = L::default();
+                    }
                 }
-            });
+            }
         }
     }
 }
@@ -185,22 +204,29 @@ pub fn p2g<T: Real>(
     inputs: &ImpulseInputs<'_, T>,
     impulses: &Impulses<T>,
     grid: &mut Grid<T>,
+    spare: &mut Vec<Vec<T::Lane4>>,
 ) {
     let mass = &inputs.particles.mass;
     let zero = T::zero();
-    schedule.scatter(k, &inputs.particles.x, &mut grid.nodes, |p, st, nodes| {
-        let (a, momentum) = (impulses.affine[p], impulses.momentum[p]);
-        // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
-        // built incrementally; each node then takes one FMA.
-        let col = |c: usize| {
-            let v = a.column(c) * k.dx;
-            T::Lane4::from_array([v.x, v.y, v.z, zero])
-        };
-        let (ax, ay, az) = (col(0), col(1), col(2));
-        let q0v = momentum - a * (st.frac * k.dx);
-        let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
-        scatter_affine::<T>(st, q0, [ax, ay, az], nodes);
-    });
+    schedule.scatter(
+        k,
+        &inputs.particles.x,
+        &mut grid.nodes,
+        spare,
+        |p, st, nodes| {
+            let (a, momentum) = (impulses.affine[p], impulses.momentum[p]);
+            // q(i,j,k) = [momentum + A·((i,j,k) − frac)·dx, m] as 4 lanes,
+            // built incrementally; each node then takes one FMA.
+            let col = |c: usize| {
+                let v = a.column(c) * k.dx;
+                T::Lane4::from_array([v.x, v.y, v.z, zero])
+            };
+            let (ax, ay, az) = (col(0), col(1), col(2));
+            let q0v = momentum - a * (st.frac * k.dx);
+            let q0 = T::Lane4::from_array([q0v.x, q0v.y, q0v.z, mass[p]]);
+            scatter_affine::<T>(st, q0, [ax, ay, az], nodes);
+        },
+    );
 }
 
 /// Adds `w_i (q0 + cols[0] i + cols[1] j + cols[2] k)` to the node at

@@ -62,10 +62,9 @@ fn impulse_from_kirchhoff<T: Real>(
     (affine, (v + accel(k, inputs, p, &v) * k.dt) * mass)
 }
 
-/// Every particle's [`particle_impulse`], computed before the scatter:
-/// in parallel over fixed chunks (the coloured scatter balances poorly
-/// across threads), the stress of several particles at once in SIMD
-/// lanes — bitwise what [`particle_impulse`] gives.
+/// Every particle's [`particle_impulse`], computed before the scatter in
+/// parallel over fixed chunks, the stress of several particles at once in
+/// SIMD lanes — bitwise what [`particle_impulse`] gives.
 #[derive(Clone, Debug, Default)]
 pub struct Impulses<T: Real> {
     pub affine: Vec<Mat3<T>>,

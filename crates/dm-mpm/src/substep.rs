@@ -36,6 +36,8 @@ pub struct SubstepScratch<T: Real> {
     gather_bar: Vec<GatherAdjoint<T>>,
     viscous: ViscousSolver<T>,
     impulses: Impulses<T>,
+    /// The scatter parts' own grids (P2G's and its adjoint's; zero between uses).
+    scatter_spare: Vec<Vec<T::Lane4>>,
     /// A box outside which `grid` is known to be zero (`None`: unknown).
     grid_written: Option<NodeBox>,
 }
@@ -53,6 +55,7 @@ impl<T: Real> SubstepScratch<T> {
             gather_bar: Vec::new(),
             viscous: ViscousSolver::default(),
             impulses: Impulses::default(),
+            scatter_spare: Vec::new(),
             grid_written: None,
         }
     }
@@ -113,6 +116,8 @@ pub struct SubstepGrads<T> {
 pub struct StageSeconds {
     pub actuators: f64,
     pub schedule: f64,
+    /// The per-particle stress and impulses P2G scatters.
+    pub stress: f64,
     pub p2g: f64,
     pub grid_update: f64,
     pub g2p: f64,
@@ -162,12 +167,14 @@ pub fn substep_forward<T: Real>(
         external_accel: inputs.external_accel,
     };
     scratch.impulses.compute(k, &impulse, false);
+    laps.lap(|s| &mut s.stress);
     p2g(
         k,
         &scratch.schedule,
         &impulse,
         &scratch.impulses,
         &mut scratch.grid,
+        &mut scratch.scatter_spare,
     );
     if scratch.keep_pre_grid {
         scratch.kept = Some(SubstepCache {
@@ -274,6 +281,7 @@ pub(crate) fn substep_backward_into<T: Real>(
                 &impulse,
                 &scratch.impulses,
                 &mut scratch.grid_pre,
+                &mut scratch.scatter_spare,
             );
             &scratch.schedule
         }
@@ -299,6 +307,7 @@ pub(crate) fn substep_backward_into<T: Real>(
         &mut grads.state,
         &mut scratch.grad_u,
         &mut scratch.gather_bar,
+        &mut scratch.scatter_spare,
     );
     let grid_parameters = grid_update_backward(
         k,

@@ -58,10 +58,24 @@ impl LbsBridge {
     /// Per-particle rotation of the motion `previous → current`.
     pub fn particle_rotations(&self, current: &[[f64; 3]]) -> Vec<Matrix3<f64>> {
         let index = PointIndex::new(&self.previous);
+        self.rotations_of(&index, current, &vec![true; self.previous.len()])
+    }
+
+    /// [`Self::particle_rotations`] of the particles marked in `wanted`
+    /// (the identity elsewhere); `index` holds the previous positions.
+    fn rotations_of(
+        &self,
+        index: &PointIndex,
+        current: &[[f64; 3]],
+        wanted: &[bool],
+    ) -> Vec<Matrix3<f64>> {
         let prev = &self.previous;
         (0..prev.len())
             .into_par_iter()
             .map(|p| {
+                if !wanted[p] {
+                    return Matrix3::identity();
+                }
                 let centre_prev = Vector3::from(prev[p]);
                 let centre_cur = Vector3::from(current[p]);
                 let mut cross = Matrix3::zeros();
@@ -92,17 +106,31 @@ impl LbsBridge {
         }
         check_finite(current)?;
         gaussians.validate()?;
-        let rotations = self.particle_rotations(current);
         let means: Vec<Vector3<f64>> = gaussians
             .means
             .iter()
             .map(|m| m.map(|c| c.to_f64()))
             .collect();
-        let binding = self.bind(&means);
+        let index = PointIndex::new(&self.previous);
+        let binding = self.bind_with(&index, &means);
+        // Only the Gaussians' bones need a rotation (a fraction of the
+        // particles when the splats cover the surface).
+        let mut is_bone = vec![false; self.previous.len()];
+        for &(b, _) in binding.bones.iter().flatten() {
+            is_bone[b as usize] = true;
+        }
+        let rotations = self.rotations_of(&index, current, &is_bone);
         let new_means = skin_means(&binding, &means, &self.previous, current, &rotations);
         let quats: Vec<UnitQuaternion<f64>> = rotations
-            .iter()
-            .map(|r| UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r)))
+            .par_iter()
+            .zip(&is_bone)
+            .map(|(r, &bone)| {
+                if bone {
+                    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r))
+                } else {
+                    UnitQuaternion::identity()
+                }
+            })
             .collect();
         let blended: Vec<UnitQuaternion<f64>> = binding
             .bones
@@ -133,7 +161,11 @@ impl LbsBridge {
     /// Each Gaussian's K nearest particles at the previous frame and their
     /// normalised inverse-distance weights.
     pub fn bind(&self, means: &[Vector3<f64>]) -> SkinBinding {
-        let index = PointIndex::new(&self.previous);
+        self.bind_with(&PointIndex::new(&self.previous), means)
+    }
+
+    /// [`Self::bind`] with the index of the previous positions at hand.
+    fn bind_with(&self, index: &PointIndex, means: &[Vector3<f64>]) -> SkinBinding {
         let bones = means
             .par_iter()
             .map(|mean| {

@@ -70,10 +70,9 @@ pub struct DiagnoseOptions {
     /// Held-out score below which the cause is `none`.
     #[arg(long = "threshold", value_name = "THRESHOLD", default_value_t = NONE_THRESHOLD)]
     pub none_threshold: f64,
-    /// Score each candidate by a fit from the start with its best trial's
-    /// effect in place (the fitted model's own `dm-fit` options, read from
-    /// its `fit_report.json`), instead of the effect added on top of a
-    /// fit that has absorbed part of it. One fit per candidate.
+    /// Score each candidate by a fresh fit with its effect in place (the
+    /// model's own dm-fit options) instead of on top of the existing fit;
+    /// one fit per candidate.
     #[arg(long)]
     pub fit_candidates: bool,
 }

@@ -91,10 +91,9 @@ pub struct SynthConfig {
     #[arg(long)]
     #[serde(default)]
     pub exact_tracks: bool,
-    /// Write the hands as the tracker would see them without error (the
-    /// scripted anchors; for `actuator_lag`, the lagged ones) as the
-    /// bundle's hand tracks, every frame seen: a reference for how much a
-    /// noisy hand track costs the model that it drives.
+    /// Hand tracks without tracker error (the scripted anchors, the lagged
+    /// ones for `actuator_lag`), every frame seen: a reference for what
+    /// hand-track noise costs.
     #[arg(long)]
     #[serde(default)]
     pub exact_hands: bool,

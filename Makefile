@@ -36,8 +36,9 @@ system-packages:
 
 # A short fit keeps the demo to a few minutes on 2 cores; see dm-fit --help.
 # Physics only: the neural residual (dm-fit's default, --residual pgnd) costs
-# about 0.7 s per frame and step on 2 cores, 3.4x the fit time, for a few
-# per cent at this length (docs/RESULTS.md). DEMO_FIT="..." to try it.
+# about 0.6 s per frame and step on 2 cores (a material step takes 35 s
+# instead of 7 s), for a few per cent at this length (docs/RESULTS.md).
+# DEMO_FIT="..." to try it.
 # Stage 3 (first-frame Gaussians, then RGB-guided refinement; 30 steps by
 # default) gets one step here: dm-fit writes the splats dm-render uses.
 DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1

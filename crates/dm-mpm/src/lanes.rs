@@ -197,15 +197,6 @@ impl<L: Lanes> M3<L> {
     }
 
     #[inline(always)]
-    pub fn identity() -> Self
-    where
-        L::Scalar: From<f32>,
-    {
-        let (one, zero) = (L::broadcast(1.0.into()), L::broadcast(0.0.into()));
-        Self::from_fn(|r, c| if r == c { one } else { zero })
-    }
-
-    #[inline(always)]
     pub fn transpose(&self) -> Self {
         Self::from_fn(|r, c| self.0[c][r])
     }

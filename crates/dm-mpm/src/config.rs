@@ -89,8 +89,8 @@ pub struct PhysicsConfig {
 
 /// Courant number of the substep bound for the model's worlds: stable at
 /// the stiff ends of both material bounds with margin (0.6 and 0.7 ran
-/// too), and within 0.3 mm of held-out track error of 0.3 on fitted
-/// scenes, at 40–60 % fewer substeps (docs/decisions/0004).
+/// too), and within 0.1 mm of 0.3's training-frame track error on fitted
+/// scenes, at 40 % fewer substeps (docs/decisions/0004).
 pub const DEFAULT_CFL: f64 = 0.5;
 
 impl PhysicsConfig {

@@ -25,8 +25,9 @@ pub struct ImpulseInputs<'a, T> {
     pub external_accel: Option<&'a [Vec3<T>]>,
 }
 
-/// `(affine, momentum)` of particle `p`: what P2G scatters. Pure, so the
-/// backward pass can recompute it; P2G takes it from [`Impulses`].
+/// `(affine, momentum)` of particle `p`: what P2G scatters, one particle
+/// at a time — the reference [`Impulses`] must equal bitwise (P2G and the
+/// backward pass take theirs from [`Impulses`]).
 #[inline(always)]
 pub fn particle_impulse<T: Real>(
     k: &Consts<T>,

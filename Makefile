@@ -36,8 +36,8 @@ system-packages:
 
 # A short fit keeps the demo to a few minutes on 2 cores; see dm-fit --help.
 # Physics only: the neural residual (dm-fit's default, --residual pgnd) costs
-# about 0.6 s per frame and step on 2 cores (a material step takes 35 s
-# instead of 7 s), for a few per cent at this length (docs/RESULTS.md).
+# a material step 10 s instead of 6 s on 2 cores, and its own stage of 36
+# steps, for a few per cent at this length (docs/RESULTS.md).
 # DEMO_FIT="..." to try it.
 # Stage 3 (first-frame Gaussians, then RGB-guided refinement; 30 steps by
 # default) gets one step here: dm-fit writes the splats dm-render uses.

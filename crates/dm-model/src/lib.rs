@@ -329,7 +329,7 @@ impl WorldModel {
     pub fn residual_network(&self) -> Result<Option<dm_residual::Residual>, ModelError> {
         self.residual
             .as_ref()
-            .map(|r| r.network(candle_core::DType::F32))
+            .map(|r| r.network(dm_residual::Precision::F32))
             .transpose()
     }
 

@@ -44,7 +44,7 @@ impl ResidualState {
             domain_size: physics.domain_size,
             seed,
         };
-        let network = Residual::new(spec.clone(), candle_core::DType::F32)?;
+        let network = Residual::new(spec.clone(), dm_residual::Precision::F32)?;
         Ok(Some(Self {
             spec,
             parameters: network.parameters()?,
@@ -53,8 +53,8 @@ impl ResidualState {
 
     /// The network with these weights, in f32 (rollouts, training) or f64
     /// (gradient checks).
-    pub fn network(&self, dtype: candle_core::DType) -> Result<Residual, ModelError> {
-        let mut network = Residual::new(self.spec.clone(), dtype)?;
+    pub fn network(&self, precision: dm_residual::Precision) -> Result<Residual, ModelError> {
+        let mut network = Residual::new(self.spec.clone(), precision)?;
         network.set_parameters(&self.parameters)?;
         Ok(network)
     }

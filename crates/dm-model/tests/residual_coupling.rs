@@ -5,7 +5,7 @@
 //! and `World::backward_frame` exactly as the fit chains them, against
 //! central finite differences.
 
-use candle_core::DType;
+use dm_residual::Precision;
 use dm_model::residual::{
     FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
@@ -83,7 +83,7 @@ fn network(w: &World<f64>) -> Residual {
         domain_size: c.domain_size,
         seed: 1,
     };
-    let mut net = Residual::new(spec, DType::F64).expect("network");
+    let mut net = Residual::new(spec, Precision::F64).expect("network");
     let mut r = stream(9);
     let values: Vec<f64> = (0..net.parameter_count()).map(|_| 0.3 * r()).collect();
     net.set_parameters(&values).expect("parameters");

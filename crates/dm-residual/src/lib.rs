@@ -11,25 +11,27 @@
 //! * [`ResidualKind::Mlp`]: the paper's ablation, a per-particle MLP with
 //!   no spatial structure.
 //!
-//! The network runs on candle (the choice and its measurements are in
-//! docs/decisions/0018-residual-framework-candle.md). Training goes through the physics adjoint: the
-//! fit hands [`Residual::vjp`] the adjoint of Δv and gets back the
+//! The network's layers and their backward passes are written out by hand
+//! over row-major matrices (`kernels`, `transfer`; the choice and its
+//! measurements are in docs/decisions/0018-residual-framework.md), with
+//! finite-difference checks in f64. Training goes through the physics
+//! adjoint: the fit hands [`Residual::vjp`] the adjoint of Δv and gets back the
 //! parameter gradient and the adjoints of the network's physical inputs
 //! (x̃, ṽ, x_t), which it adds to the MPM state adjoint.
 
 pub mod features;
+pub mod kernels;
 pub mod network;
+pub mod transfer;
 
 pub use features::{CHANNELS, FrameInputs, HISTORY};
-pub use network::{NetworkSize, Residual, ResidualGrads, ResidualKind, ResidualSpec};
+pub use network::{NetworkSize, Precision, Residual, ResidualGrads, ResidualKind, ResidualSpec};
 
 use std::path::PathBuf;
 
 /// Why the residual could not be built, run, saved or loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum ResidualError {
-    #[error("residual network: {0}")]
-    Candle(#[from] candle_core::Error),
     #[error("{}: {problem}", path.display())]
     File { path: PathBuf, problem: String },
     #[error("residual input `{field}`: {problem}")]

@@ -1,5 +1,7 @@
-//! The residual networks on candle: [`ResidualKind::Pgnd`] (particle
-//! encoder → grid decoder → particles) and [`ResidualKind::Mlp`].
+//! The residual networks: [`ResidualKind::Pgnd`] (particle encoder → grid
+//! decoder → particles) and [`ResidualKind::Mlp`], forward and
+//! vector-Jacobian product written out layer by layer (`kernels`,
+//! `transfer`).
 //!
 //! The bound: the decoder's raw output y becomes α·tanh(|y|)·y/|y|, a
 //! vector no longer than α (method.md writes α·tanh per component, whose
@@ -7,11 +9,13 @@
 //! B-spline weights sum to one), so |Δv| ≤ α holds exactly.
 
 use crate::ResidualError;
-use crate::features::{CHANNELS, FrameInputs};
-use candle_core::{D, DType, Device, Tensor, Var};
-use candle_nn::{GroupNorm, Linear, Module};
+use crate::features::{CHANNELS, FrameInputs, HISTORY};
+use crate::kernels::{
+    Bound, Dense, GroupNorm, NormTape, Rows, Scalar, column_max, column_sums, relu, relu_backward,
+};
+use crate::transfer::{self, Stencil};
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Which residual a model carries.
@@ -71,13 +75,24 @@ pub struct ResidualSpec {
 pub const OUTPUT_SCALE: f64 = 1e-2;
 
 /// Smallest B-spline weight sum a grid node's particle-to-node average
-/// divides by (see the node features in `forward_tensors`).
+/// divides by. Nodes that only a particle's vanishing spline tail reaches
+/// have a tiny weight sum: their feature is a ratio of two tiny numbers and
+/// its derivative with respect to the sum (−a/b²) overflows f32 (NaN
+/// gradients in a toy fit). Such nodes count as nearly empty.
 pub const MIN_NODE_WEIGHT: f64 = 1e-6;
 
 /// Fourier bands of the node-position encoding (method.md §5: L = 6).
 pub const FOURIER_BANDS: usize = 6;
 const NODE_ENCODING: usize = 3 + 6 * FOURIER_BANDS;
-const STENCIL: usize = 27;
+
+/// The element type a network computes in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Precision {
+    /// Rollouts and training.
+    F32,
+    /// Finite-difference gradient checks.
+    F64,
+}
 
 /// The result of [`Residual::vjp`]: gradients of ⟨Δv, Δv̄⟩.
 #[derive(Clone, Debug, PartialEq)]
@@ -89,23 +104,55 @@ pub struct ResidualGrads {
     pub x_start: Vec<[f64; 3]>,
 }
 
-/// A residual network with its weights.
-#[derive(Debug)]
-pub struct Residual {
-    spec: ResidualSpec,
-    dtype: DType,
-    /// Sorted by name: the order of the flat parameter vector.
-    vars: BTreeMap<String, Var>,
+/// Where each named weight tensor sits in the flat parameter vector
+/// (tensors sorted by name, each row-major).
+#[derive(Clone, Debug, PartialEq)]
+struct Layout {
+    tensors: BTreeMap<String, (Vec<usize>, usize)>,
+    total: usize,
 }
 
-/// The particle↔node transfer of one frame: node ids and the constant
-/// integer base of each particle's stencil.
-struct Stencil {
-    base: Tensor,
-    node_index: Tensor,
-    owner: Tensor,
-    node_encoding: Tensor,
-    nodes: usize,
+impl Layout {
+    fn new(spec: &ResidualSpec) -> Self {
+        let mut shapes: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+        for (name, inputs, outputs) in layer_shapes(spec) {
+            if name == "enc1" || name == "enc2" {
+                shapes.insert(format!("{name}.norm.weight"), vec![outputs]);
+                shapes.insert(format!("{name}.norm.bias"), vec![outputs]);
+            }
+            shapes.insert(format!("{name}.weight"), vec![outputs, inputs]);
+            shapes.insert(format!("{name}.bias"), vec![outputs]);
+        }
+        let mut total = 0;
+        let tensors = shapes
+            .into_iter()
+            .map(|(name, shape)| {
+                let offset = total;
+                total += shape.iter().product::<usize>();
+                (name, (shape, offset))
+            })
+            .collect();
+        Self { tensors, total }
+    }
+
+    fn range(&self, name: &str) -> std::ops::Range<usize> {
+        let (shape, offset) = &self.tensors[name];
+        *offset..offset + shape.iter().product::<usize>()
+    }
+}
+
+#[derive(Clone, Debug)]
+enum Weights {
+    F32(Vec<f32>),
+    F64(Vec<f64>),
+}
+
+/// A residual network with its weights.
+#[derive(Clone, Debug)]
+pub struct Residual {
+    spec: ResidualSpec,
+    layout: Layout,
+    weights: Weights,
 }
 
 fn layer_shapes(spec: &ResidualSpec) -> Vec<(String, usize, usize)> {
@@ -147,24 +194,468 @@ fn uniform_stream(seed: u64) -> impl FnMut() -> f64 {
     }
 }
 
-fn rows(values: &[[f64; 3]], dtype: DType) -> Result<Tensor, ResidualError> {
-    let flat: Vec<f64> = values.iter().flatten().copied().collect();
-    Ok(Tensor::from_vec(flat, (values.len(), 3), &Device::Cpu)?.to_dtype(dtype)?)
+fn to_rows<T: Scalar>(values: &[[f64; 3]]) -> Rows<T> {
+    Rows::from_values(values.iter().flatten().map(|v| T::lit(*v)), 3)
 }
 
-fn to_rows(t: &Tensor) -> Result<Vec<[f64; 3]>, ResidualError> {
-    Ok(t.to_dtype(DType::F64)?
-        .to_vec2::<f64>()?
-        .into_iter()
-        .map(|r| [r[0], r[1], r[2]])
-        .collect())
+fn from_rows<T: Scalar>(m: &Rows<T>) -> Vec<[f64; 3]> {
+    m.data
+        .chunks(3)
+        .map(|r| [r[0].widen(), r[1].widen(), r[2].widen()])
+        .collect()
+}
+
+/// The network's view of its weights in one precision.
+struct Net<'a, T> {
+    spec: &'a ResidualSpec,
+    layout: &'a Layout,
+    weights: &'a [T],
+}
+
+/// Everything the backward pass needs of a forward pass.
+struct Tape<T: Scalar> {
+    x_tilde: Rows<T>,
+    channels: Rows<T>,
+    body: BodyTape<T>,
+}
+
+enum BodyTape<T: Scalar> {
+    Mlp { hidden: [Rows<T>; 3], raw: Rows<T> },
+    Pgnd(Box<GridTape<T>>),
+}
+
+struct GridTape<T: Scalar> {
+    encoded: [Rows<T>; 2],
+    norms: [NormTape<T>; 2],
+    global: Vec<T>,
+    global_at: Vec<usize>,
+    feature: Rows<T>,
+    stencil: Stencil,
+    weights: Rows<T>,
+    node_feature: Rows<T>,
+    weight_sums: Vec<T>,
+    encoding: Rows<T>,
+    decoded: [Rows<T>; 3],
+    raw: Rows<T>,
+    node_velocity: Rows<T>,
+}
+
+impl<'a, T: Scalar> Net<'a, T> {
+    fn tensor(&self, name: &str) -> &'a [T] {
+        &self.weights[self.layout.range(name)]
+    }
+
+    fn dense(&self, name: &str) -> Dense<'a, T> {
+        let shape = &self.layout.tensors[&format!("{name}.weight")].0;
+        Dense {
+            weight: self.tensor(&format!("{name}.weight")),
+            bias: self.tensor(&format!("{name}.bias")),
+            inputs: shape[1],
+            outputs: shape[0],
+        }
+    }
+
+    fn norm(&self, name: &str) -> GroupNorm<'a, T> {
+        GroupNorm {
+            scale: self.tensor(&format!("{name}.norm.weight")),
+            shift: self.tensor(&format!("{name}.norm.bias")),
+            groups: self.spec.size.groups,
+        }
+    }
+
+    fn bound(&self) -> Bound {
+        Bound {
+            alpha: self.spec.alpha,
+            scale: OUTPUT_SCALE,
+        }
+    }
+
+    /// The 27 input channels per particle: x̃, ṽ, x̃ − x_t and the history,
+    /// positions centred on x̃'s centroid.
+    fn channels(inputs: &FrameInputs) -> Rows<T> {
+        let n = inputs.particle_count();
+        let mut centroid = [0.0; 3];
+        for x in &inputs.x_tilde {
+            for a in 0..3 {
+                centroid[a] += x[a] / n as f64;
+            }
+        }
+        let centroid = centroid.map(T::lit);
+        let mut m = Rows::zeros(n, CHANNELS);
+        for (p, row) in m.data.chunks_mut(CHANNELS).enumerate() {
+            let x = inputs.x_tilde[p].map(T::lit);
+            let start = inputs.x_start[p].map(T::lit);
+            for a in 0..3 {
+                row[a] = x[a] - centroid[a];
+                row[3 + a] = T::lit(inputs.v_tilde[p][a]);
+                row[6 + a] = x[a] - start[a];
+            }
+            for (k, (hx, hv)) in inputs.history.iter().enumerate() {
+                for a in 0..3 {
+                    row[9 + 6 * k + a] = T::lit(hx[p][a]) - centroid[a];
+                    row[12 + 6 * k + a] = T::lit(hv[p][a]);
+                }
+            }
+        }
+        m
+    }
+
+    /// (∂x̃, ∂ṽ, ∂x_t) from the channels' gradient (the centroid is x̃'s).
+    fn channels_backward(grad: &Rows<T>) -> [Rows<T>; 3] {
+        let n = grad.rows();
+        let mut out = [0, 1, 2].map(|_| Rows::zeros(n, 3));
+        let mut centroid = [T::zero(); 3];
+        for p in 0..n {
+            let g = grad.row(p);
+            for a in 0..3 {
+                let mut centred = g[a];
+                for k in 0..HISTORY {
+                    centred = centred + g[9 + 6 * k + a];
+                }
+                centroid[a] = centroid[a] - centred;
+                out[0].data[3 * p + a] = g[a] + g[6 + a];
+                out[1].data[3 * p + a] = g[3 + a];
+                out[2].data[3 * p + a] = -g[6 + a];
+            }
+        }
+        let share = T::lit(1.0 / n as f64);
+        for row in out[0].data.chunks_mut(3) {
+            for a in 0..3 {
+                row[a] = row[a] + centroid[a] * share;
+            }
+        }
+        out
+    }
+
+    /// Fourier encoding of each node's position in the domain.
+    fn node_encoding(&self, stencil: &Stencil) -> Rows<T> {
+        let s = self.spec;
+        let mut m = Rows::zeros(stencil.nodes(), NODE_ENCODING);
+        for (node, row) in stencil.cells.iter().zip(m.data.chunks_mut(NODE_ENCODING)) {
+            let q = [0, 1, 2].map(|a| node[a] as f64 * s.grid_dx / s.domain_size);
+            let mut values = q.to_vec();
+            for band in 0..FOURIER_BANDS {
+                let frequency = (1u32 << band) as f64 * std::f64::consts::PI;
+                values.extend(q.map(|c| (frequency * c).sin()));
+                values.extend(q.map(|c| (frequency * c).cos()));
+            }
+            for (r, v) in row.iter_mut().zip(values) {
+                *r = T::lit(v);
+            }
+        }
+        m
+    }
+
+    fn forward(&self, inputs: &FrameInputs) -> (Rows<T>, Tape<T>) {
+        let channels = Self::channels(inputs);
+        let x_tilde = to_rows::<T>(&inputs.x_tilde);
+        let (dv, body) = match self.spec.kind {
+            ResidualKind::Pgnd => {
+                let (dv, tape) = self.grid_forward(&x_tilde, &channels, inputs);
+                (dv, BodyTape::Pgnd(Box::new(tape)))
+            }
+            _ => {
+                let mut h1 = self.dense("mlp1").forward(&[&channels], None);
+                relu(&mut h1);
+                let mut h2 = self.dense("mlp2").forward(&[&h1], None);
+                relu(&mut h2);
+                let mut h3 = self.dense("mlp3").forward(&[&h2, &channels], None);
+                relu(&mut h3);
+                let raw = self.dense("mlp4").forward(&[&h3], None);
+                let dv = self.bound().forward(&raw);
+                (
+                    dv,
+                    BodyTape::Mlp {
+                        hidden: [h1, h2, h3],
+                        raw,
+                    },
+                )
+            }
+        };
+        (
+            dv,
+            Tape {
+                x_tilde,
+                channels,
+                body,
+            },
+        )
+    }
+
+    fn grid_forward(
+        &self,
+        x_tilde: &Rows<T>,
+        channels: &Rows<T>,
+        inputs: &FrameInputs,
+    ) -> (Rows<T>, GridTape<T>) {
+        let s = self.spec;
+        let e2 = s.size.encoder[1];
+        let (mut h1, norm1) = self
+            .norm("enc1")
+            .forward(&self.dense("enc1").forward(&[channels], None));
+        relu(&mut h1);
+        let (mut h2, norm2) = self
+            .norm("enc2")
+            .forward(&self.dense("enc2").forward(&[&h1], None));
+        relu(&mut h2);
+        // [h, max-pool(h)]·Wᵀ + b: the pooled half is the same for every
+        // particle, so it is folded into the bias.
+        let (global, global_at) = column_max(&h2);
+        let enc3 = self.dense("enc3");
+        let bias: Vec<T> = (0..enc3.outputs)
+            .map(|o| {
+                let w = &enc3.weight[o * enc3.inputs + e2..(o + 1) * enc3.inputs];
+                w.iter()
+                    .zip(&global)
+                    .fold(enc3.bias[o], |acc, (a, b)| acc + *a * *b)
+            })
+            .collect();
+        let feature = enc3.forward(&[&h2], Some(&bias));
+
+        let stencil = Stencil::new(&inputs.x_tilde, s.grid_origin, s.grid_dx);
+        let weights = transfer::spline_weights(x_tilde, &stencil, s.grid_origin, s.grid_dx);
+        let (node_feature, weight_sums) =
+            transfer::node_means(&feature, &weights, &stencil, MIN_NODE_WEIGHT);
+        let encoding = self.node_encoding(&stencil);
+        let mut d1 = self
+            .dense("dec1")
+            .forward(&[&node_feature, &encoding], None);
+        relu(&mut d1);
+        let mut d2 = self.dense("dec2").forward(&[&d1], None);
+        relu(&mut d2);
+        let mut d3 = self
+            .dense("dec3")
+            .forward(&[&d2, &node_feature, &encoding], None);
+        relu(&mut d3);
+        let raw = self.dense("dec4").forward(&[&d3], None);
+        let node_velocity = self.bound().forward(&raw);
+        let dv = transfer::to_particles(&node_velocity, &weights, &stencil);
+        (
+            dv,
+            GridTape {
+                encoded: [h1, h2],
+                norms: [norm1, norm2],
+                global,
+                global_at,
+                feature,
+                stencil,
+                weights,
+                node_feature,
+                weight_sums,
+                encoding,
+                decoded: [d1, d2, d3],
+                raw,
+                node_velocity,
+            },
+        )
+    }
+
+    /// Adds ∂L/∂W and ∂L/∂b of layer `name` to the flat gradient.
+    fn dense_backward(
+        &self,
+        name: &str,
+        blocks: &[&Rows<T>],
+        grad: &Rows<T>,
+        wanted: &[bool],
+        flat: &mut [T],
+    ) -> Vec<Option<Rows<T>>> {
+        let layer = self.dense(name);
+        let mut weight_grad = vec![T::zero(); layer.weight.len()];
+        let mut bias_grad = vec![T::zero(); layer.bias.len()];
+        let out = layer.backward(blocks, grad, wanted, &mut weight_grad, &mut bias_grad);
+        add(
+            &mut flat[self.layout.range(&format!("{name}.weight"))],
+            &weight_grad,
+        );
+        add(
+            &mut flat[self.layout.range(&format!("{name}.bias"))],
+            &bias_grad,
+        );
+        out
+    }
+
+    fn norm_backward(
+        &self,
+        name: &str,
+        tape: &NormTape<T>,
+        grad: &Rows<T>,
+        flat: &mut [T],
+    ) -> Rows<T> {
+        let norm = self.norm(name);
+        let mut scale = vec![T::zero(); norm.scale.len()];
+        let mut shift = vec![T::zero(); norm.shift.len()];
+        let out = norm.backward(tape, grad, &mut scale, &mut shift);
+        add(
+            &mut flat[self.layout.range(&format!("{name}.norm.weight"))],
+            &scale,
+        );
+        add(
+            &mut flat[self.layout.range(&format!("{name}.norm.bias"))],
+            &shift,
+        );
+        out
+    }
+
+    /// The flat parameter gradient and (∂x̃, ∂ṽ, ∂x_t) of ⟨Δv, `grad`⟩.
+    fn backward(&self, tape: &Tape<T>, grad: &Rows<T>) -> (Vec<T>, [Rows<T>; 3]) {
+        let mut flat = vec![T::zero(); self.layout.total];
+        let (d_channels, d_x_weights) = match &tape.body {
+            BodyTape::Mlp { hidden, raw } => {
+                let [h1, h2, h3] = hidden;
+                let d_raw = self.bound().backward(raw, grad);
+                let mut d3 = take(
+                    self.dense_backward("mlp4", &[h3], &d_raw, &[true], &mut flat),
+                    0,
+                );
+                relu_backward(h3, &mut d3);
+                let mut both = self.dense_backward(
+                    "mlp3",
+                    &[h2, &tape.channels],
+                    &d3,
+                    &[true, true],
+                    &mut flat,
+                );
+                let mut d2 = take_mut(&mut both, 0);
+                let d_channels_direct = take_mut(&mut both, 1);
+                relu_backward(h2, &mut d2);
+                let mut d1 = take(
+                    self.dense_backward("mlp2", &[h1], &d2, &[true], &mut flat),
+                    0,
+                );
+                relu_backward(h1, &mut d1);
+                let mut d_channels = take(
+                    self.dense_backward("mlp1", &[&tape.channels], &d1, &[true], &mut flat),
+                    0,
+                );
+                add(&mut d_channels.data, &d_channels_direct.data);
+                (d_channels, None)
+            }
+            BodyTape::Pgnd(g) => {
+                let (dc, dx) =
+                    self.grid_backward(g, &tape.x_tilde, &tape.channels, grad, &mut flat);
+                (dc, Some(dx))
+            }
+        };
+        let mut inputs = Self::channels_backward(&d_channels);
+        if let Some(dx) = d_x_weights {
+            add(&mut inputs[0].data, &dx.data);
+        }
+        (flat, inputs)
+    }
+
+    /// Backward through decoder, transfers and encoder: (∂channels, ∂x̃
+    /// through the spline weights).
+    fn grid_backward(
+        &self,
+        g: &GridTape<T>,
+        x_tilde: &Rows<T>,
+        channels: &Rows<T>,
+        grad: &Rows<T>,
+        flat: &mut [T],
+    ) -> (Rows<T>, Rows<T>) {
+        let s = self.spec;
+        let e2 = s.size.encoder[1];
+        let (d_node_velocity, mut d_weights) =
+            transfer::to_particles_backward(&g.node_velocity, &g.weights, &g.stencil, grad);
+        let d_raw = self.bound().backward(&g.raw, &d_node_velocity);
+        let [d1, d2, d3] = &g.decoded;
+        let mut dd3 = take(self.dense_backward("dec4", &[d3], &d_raw, &[true], flat), 0);
+        relu_backward(d3, &mut dd3);
+        let mut three = self.dense_backward(
+            "dec3",
+            &[d2, &g.node_feature, &g.encoding],
+            &dd3,
+            &[true, true, false],
+            flat,
+        );
+        let mut dd2 = take_mut(&mut three, 0);
+        let mut d_node_feature = take_mut(&mut three, 1);
+        relu_backward(d2, &mut dd2);
+        let mut dd1 = take(self.dense_backward("dec2", &[d1], &dd2, &[true], flat), 0);
+        relu_backward(d1, &mut dd1);
+        let from_dec1 = take(
+            self.dense_backward(
+                "dec1",
+                &[&g.node_feature, &g.encoding],
+                &dd1,
+                &[true, false],
+                flat,
+            ),
+            0,
+        );
+        add(&mut d_node_feature.data, &from_dec1.data);
+        let (d_feature, d_weights_means) = transfer::node_means_backward(
+            &g.feature,
+            &g.weights,
+            &g.stencil,
+            MIN_NODE_WEIGHT,
+            &g.node_feature,
+            &g.weight_sums,
+            &d_node_feature,
+        );
+        add(&mut d_weights.data, &d_weights_means.data);
+        let d_x = transfer::spline_weights_backward(
+            x_tilde,
+            &g.stencil,
+            s.grid_origin,
+            s.grid_dx,
+            &d_weights,
+        );
+
+        // enc3 with its pooled half folded into the bias.
+        let [h1, h2] = &g.encoded;
+        let mut dh2 = take(
+            self.dense_backward("enc3", &[h2], &d_feature, &[true], flat),
+            0,
+        );
+        let enc3 = self.dense("enc3");
+        let bias_grad = column_sums(&d_feature);
+        let weight_range = self.layout.range("enc3.weight");
+        for o in 0..enc3.outputs {
+            for c in 0..e2 {
+                let at = weight_range.start + o * enc3.inputs + e2 + c;
+                flat[at] = flat[at] + bias_grad[o] * g.global[c];
+            }
+        }
+        for c in 0..e2 {
+            let d_global = (0..enc3.outputs).fold(T::zero(), |acc, o| {
+                acc + enc3.weight[o * enc3.inputs + e2 + c] * bias_grad[o]
+            });
+            let at = g.global_at[c] * e2 + c;
+            dh2.data[at] = dh2.data[at] + d_global;
+        }
+        relu_backward(h2, &mut dh2);
+        let dz2 = self.norm_backward("enc2", &g.norms[1], &dh2, flat);
+        let mut dh1 = take(self.dense_backward("enc2", &[h1], &dz2, &[true], flat), 0);
+        relu_backward(h1, &mut dh1);
+        let dz1 = self.norm_backward("enc1", &g.norms[0], &dh1, flat);
+        let d_channels = take(
+            self.dense_backward("enc1", &[channels], &dz1, &[true], flat),
+            0,
+        );
+        (d_channels, d_x)
+    }
+}
+
+fn add<T: Scalar>(target: &mut [T], values: &[T]) {
+    for (t, v) in target.iter_mut().zip(values) {
+        *t = *t + *v;
+    }
+}
+
+fn take<T: Scalar>(mut blocks: Vec<Option<Rows<T>>>, i: usize) -> Rows<T> {
+    take_mut(&mut blocks, i)
+}
+
+fn take_mut<T: Scalar>(blocks: &mut [Option<Rows<T>>], i: usize) -> Rows<T> {
+    blocks[i].take().expect("the gradient of a wanted block")
 }
 
 impl Residual {
     /// A freshly initialised network: PyTorch's default uniform
     /// initialisation, except the last layer, which starts at zero so that
     /// an untrained residual changes nothing.
-    pub fn new(spec: ResidualSpec, dtype: DType) -> Result<Self, ResidualError> {
+    pub fn new(spec: ResidualSpec, precision: Precision) -> Result<Self, ResidualError> {
         if spec.kind == ResidualKind::None {
             return Err(ResidualError::Input {
                 field: "kind".into(),
@@ -184,239 +675,56 @@ impl Residual {
                 problem: "must be positive".into(),
             });
         }
+        let layout = Layout::new(&spec);
+        let mut values = vec![0.0; layout.total];
         let mut uniform = uniform_stream(spec.seed);
-        let mut vars = BTreeMap::new();
         let shapes = layer_shapes(&spec);
         let last = shapes.len() - 1;
-        for (i, (name, inputs, outputs)) in shapes.into_iter().enumerate() {
+        for (i, (name, inputs, _)) in shapes.into_iter().enumerate() {
             let bound = if i == last {
                 0.0
             } else {
                 1.0 / (inputs as f64).sqrt()
             };
-            let w: Vec<f64> = (0..inputs * outputs)
-                .map(|_| bound * (2.0 * uniform() - 1.0))
-                .collect();
-            let b: Vec<f64> = (0..outputs)
-                .map(|_| bound * (2.0 * uniform() - 1.0))
-                .collect();
-            let w = Tensor::from_vec(w, (outputs, inputs), &Device::Cpu)?.to_dtype(dtype)?;
-            let b = Tensor::from_vec(b, outputs, &Device::Cpu)?.to_dtype(dtype)?;
-            vars.insert(format!("{name}.weight"), Var::from_tensor(&w)?);
-            vars.insert(format!("{name}.bias"), Var::from_tensor(&b)?);
+            for tensor in ["weight", "bias"] {
+                for v in &mut values[layout.range(&format!("{name}.{tensor}"))] {
+                    *v = bound * (2.0 * uniform() - 1.0);
+                }
+            }
             if name == "enc1" || name == "enc2" {
-                let ones = Tensor::ones(outputs, dtype, &Device::Cpu)?;
-                let zeros = Tensor::zeros(outputs, dtype, &Device::Cpu)?;
-                vars.insert(format!("{name}.norm.weight"), Var::from_tensor(&ones)?);
-                vars.insert(format!("{name}.norm.bias"), Var::from_tensor(&zeros)?);
+                values[layout.range(&format!("{name}.norm.weight"))].fill(1.0);
             }
         }
-        Ok(Self { spec, dtype, vars })
+        let weights = match precision {
+            Precision::F32 => Weights::F32(values.iter().map(|v| *v as f32).collect()),
+            Precision::F64 => Weights::F64(values),
+        };
+        Ok(Self {
+            spec,
+            layout,
+            weights,
+        })
     }
 
     pub fn spec(&self) -> &ResidualSpec {
         &self.spec
     }
 
-    fn var(&self, name: &str) -> Result<&Var, ResidualError> {
-        self.vars.get(name).ok_or_else(|| ResidualError::Input {
-            field: name.into(),
-            problem: "missing weight".into(),
-        })
-    }
-
-    fn linear(&self, name: &str) -> Result<Linear, ResidualError> {
-        Ok(Linear::new(
-            self.var(&format!("{name}.weight"))?.as_tensor().clone(),
-            Some(self.var(&format!("{name}.bias"))?.as_tensor().clone()),
-        ))
-    }
-
-    /// Per-point GroupNorm: (n, c) is normalised as one (1, c, n) sample.
-    fn norm(&self, name: &str, x: &Tensor) -> Result<Tensor, ResidualError> {
-        let weight = self
-            .var(&format!("{name}.norm.weight"))?
-            .as_tensor()
-            .clone();
-        let bias = self.var(&format!("{name}.norm.bias"))?.as_tensor().clone();
-        let channels = weight.dim(0)?;
-        let gn = GroupNorm::new(weight, bias, channels, self.spec.size.groups, 1e-5)?;
-        Ok(gn.forward(&x.t()?.unsqueeze(0)?)?.squeeze(0)?.t()?)
-    }
-
-    /// The 27 input channels (n, 27), positions centred on x̃'s centroid.
-    fn input_channels(
-        &self,
-        x_tilde: &Tensor,
-        v_tilde: &Tensor,
-        x_start: &Tensor,
-        inputs: &FrameInputs,
-    ) -> Result<Tensor, ResidualError> {
-        let centroid = x_tilde.mean_keepdim(0)?;
-        let mut channels = vec![
-            x_tilde.broadcast_sub(&centroid)?,
-            v_tilde.clone(),
-            (x_tilde - x_start)?,
-        ];
-        for (x, v) in &inputs.history {
-            channels.push(rows(x, self.dtype)?.broadcast_sub(&centroid)?);
-            channels.push(rows(v, self.dtype)?);
-        }
-        Ok(Tensor::cat(&channels, 1)?)
-    }
-
-    fn stencil(&self, x_tilde: &[[f64; 3]]) -> Result<Stencil, ResidualError> {
-        let s = &self.spec;
-        let mut ids: HashMap<[i64; 3], u32> = HashMap::new();
-        let mut node_cells: Vec<[i64; 3]> = Vec::new();
-        let mut base = Vec::with_capacity(x_tilde.len() * 3);
-        let mut node_index = Vec::with_capacity(x_tilde.len() * STENCIL);
-        for x in x_tilde {
-            let cell =
-                [0, 1, 2].map(|a| ((x[a] - s.grid_origin[a]) / s.grid_dx - 0.5).floor() as i64);
-            base.extend(cell.map(|c| c as f64));
-            for i in 0..3 {
-                for j in 0..3 {
-                    for k in 0..3 {
-                        let node = [cell[0] + i, cell[1] + j, cell[2] + k];
-                        let next = node_cells.len() as u32;
-                        let id = *ids.entry(node).or_insert_with(|| {
-                            node_cells.push(node);
-                            next
-                        });
-                        node_index.push(id);
-                    }
-                }
-            }
-        }
-        let nodes = node_cells.len();
-        let mut encoding = Vec::with_capacity(nodes * NODE_ENCODING);
-        for node in &node_cells {
-            let q = [0, 1, 2].map(|a| node[a] as f64 * s.grid_dx / s.domain_size);
-            encoding.extend(q);
-            for band in 0..FOURIER_BANDS {
-                let frequency = (1u32 << band) as f64 * std::f64::consts::PI;
-                encoding.extend(q.map(|c| (frequency * c).sin()));
-                encoding.extend(q.map(|c| (frequency * c).cos()));
-            }
-        }
-        let n = x_tilde.len();
-        let owner: Vec<u32> = (0..n as u32).flat_map(|p| [p; STENCIL]).collect();
-        let cpu = &Device::Cpu;
-        Ok(Stencil {
-            base: Tensor::from_vec(base, (n, 3), cpu)?.to_dtype(self.dtype)?,
-            node_index: Tensor::from_vec(node_index, n * STENCIL, cpu)?,
-            owner: Tensor::from_vec(owner, n * STENCIL, cpu)?,
-            node_encoding: Tensor::from_vec(encoding, (nodes, NODE_ENCODING), cpu)?
-                .to_dtype(self.dtype)?,
-            nodes,
-        })
-    }
-
-    /// Quadratic B-spline weights (n·27, 1) of each particle's stencil,
-    /// differentiable in x̃ (the stencil's base cell is piecewise constant).
-    fn spline_weights(&self, x_tilde: &Tensor, stencil: &Stencil) -> Result<Tensor, ResidualError> {
-        let s = &self.spec;
-        let n = x_tilde.dim(0)?;
-        let origin =
-            Tensor::from_vec(s.grid_origin.to_vec(), (1, 3), &Device::Cpu)?.to_dtype(self.dtype)?;
-        let fx = ((x_tilde.broadcast_sub(&origin)? / s.grid_dx)? - &stencil.base)?;
-        let w0 = ((fx.affine(-1.0, 1.5)?.sqr()?) * 0.5)?;
-        let w1 = (fx.affine(1.0, -1.0)?.sqr()?.affine(-1.0, 0.75))?;
-        let w2 = ((fx.affine(1.0, -0.5)?.sqr()?) * 0.5)?;
-        // (n, 3 axes, 3 offsets)
-        let w = Tensor::stack(&[w0, w1, w2], 2)?;
-        let wx = w.narrow(1, 0, 1)?.reshape((n, 3, 1, 1))?;
-        let wy = w.narrow(1, 1, 1)?.reshape((n, 1, 3, 1))?;
-        let wz = w.narrow(1, 2, 1)?.reshape((n, 1, 1, 3))?;
-        Ok(wx
-            .broadcast_mul(&wy)?
-            .broadcast_mul(&wz)?
-            .reshape((n * STENCIL, 1))?)
-    }
-
-    /// α·tanh(|y|)·y/|y| row by row, for y = OUTPUT_SCALE · raw output.
-    fn bound(&self, y: &Tensor) -> Result<Tensor, ResidualError> {
-        let y = (y * OUTPUT_SCALE)?;
-        let y = &y;
-        let norm = (y.sqr()?.sum_keepdim(D::Minus1)? + 1e-12)?.sqrt()?;
-        Ok((y.broadcast_mul(&(norm.tanh()? / &norm)?)? * self.spec.alpha)?)
-    }
-
-    fn forward_tensors(
-        &self,
-        x_tilde: &Tensor,
-        v_tilde: &Tensor,
-        x_start: &Tensor,
-        inputs: &FrameInputs,
-    ) -> Result<Tensor, ResidualError> {
-        let channels = self.input_channels(x_tilde, v_tilde, x_start, inputs)?;
-        match self.spec.kind {
-            ResidualKind::Mlp => {
-                let h = self.linear("mlp1")?.forward(&channels)?.relu()?;
-                let h = self.linear("mlp2")?.forward(&h)?.relu()?;
-                let h = self
-                    .linear("mlp3")?
-                    .forward(&Tensor::cat(&[&h, &channels], 1)?)?
-                    .relu()?;
-                self.bound(&self.linear("mlp4")?.forward(&h)?)
-            }
-            ResidualKind::Pgnd => {
-                let n = inputs.particle_count();
-                let h = self
-                    .norm("enc1", &self.linear("enc1")?.forward(&channels)?)?
-                    .relu()?;
-                let h = self
-                    .norm("enc2", &self.linear("enc2")?.forward(&h)?)?
-                    .relu()?;
-                let global = h.max_keepdim(0)?.broadcast_as(h.shape())?;
-                let feature = self
-                    .linear("enc3")?
-                    .forward(&Tensor::cat(&[&h, &global], 1)?)?;
-                let stencil = self.stencil(&inputs.x_tilde)?;
-                let w = self.spline_weights(x_tilde, &stencil)?;
-                let width = feature.dim(1)?;
-                let cpu = &Device::Cpu;
-                // Nodes that only a particle's vanishing spline tail reaches
-                // have a tiny weight sum: their feature is a ratio of two
-                // tiny numbers and its derivative with respect to the sum
-                // (−a/b²) overflows f32 (NaN gradients in a toy fit). Such
-                // nodes count as nearly empty.
-                let weight_sum = Tensor::zeros((stencil.nodes, 1), self.dtype, cpu)?
-                    .index_add(&stencil.node_index, &w, 0)?
-                    .clamp(MIN_NODE_WEIGHT, f64::MAX)?;
-                let spread = feature.index_select(&stencil.owner, 0)?.broadcast_mul(&w)?;
-                let node_feature = Tensor::zeros((stencil.nodes, width), self.dtype, cpu)?
-                    .index_add(&stencil.node_index, &spread, 0)?
-                    .broadcast_div(&weight_sum)?;
-                let node_in = Tensor::cat(&[&node_feature, &stencil.node_encoding], 1)?;
-                let h = self.linear("dec1")?.forward(&node_in)?.relu()?;
-                let h = self.linear("dec2")?.forward(&h)?.relu()?;
-                let h = self
-                    .linear("dec3")?
-                    .forward(&Tensor::cat(&[&h, &node_in], 1)?)?
-                    .relu()?;
-                let node_velocity = self.bound(&self.linear("dec4")?.forward(&h)?)?;
-                Ok(node_velocity
-                    .index_select(&stencil.node_index, 0)?
-                    .broadcast_mul(&w)?
-                    .reshape((n, STENCIL, 3))?
-                    .sum(1)?)
-            }
-            ResidualKind::None => Err(ResidualError::Input {
-                field: "kind".into(),
-                problem: "`none` has no network".into(),
-            }),
+    fn net<'a, T>(&'a self, weights: &'a [T]) -> Net<'a, T> {
+        Net {
+            spec: &self.spec,
+            layout: &self.layout,
+            weights,
         }
     }
 
     /// Δv for one frame (m/s, caller's order).
     pub fn predict(&self, inputs: &FrameInputs) -> Result<Vec<[f64; 3]>, ResidualError> {
         inputs.validate()?;
-        let x = rows(&inputs.x_tilde, self.dtype)?;
-        let v = rows(&inputs.v_tilde, self.dtype)?;
-        let s = rows(&inputs.x_start, self.dtype)?;
-        to_rows(&self.forward_tensors(&x, &v, &s, inputs)?)
+        Ok(match &self.weights {
+            Weights::F32(w) => from_rows(&self.net(w).forward(inputs).0),
+            Weights::F64(w) => from_rows(&self.net(w).forward(inputs).0),
+        })
     }
 
     /// Vector-Jacobian product: the gradients of ⟨Δv(inputs), `grad_dv`⟩
@@ -435,51 +743,36 @@ impl Residual {
                 problem: "length differs from the particle count".into(),
             });
         }
-        let x = Var::from_tensor(&rows(&inputs.x_tilde, self.dtype)?)?;
-        let v = Var::from_tensor(&rows(&inputs.v_tilde, self.dtype)?)?;
-        let s = Var::from_tensor(&rows(&inputs.x_start, self.dtype)?)?;
-        let dv = self.forward_tensors(x.as_tensor(), v.as_tensor(), s.as_tensor(), inputs)?;
-        let surrogate = (dv * rows(grad_dv, self.dtype)?)?.sum_all()?;
-        let grads = surrogate.backward()?;
-        let mut parameters = Vec::with_capacity(self.parameter_count());
-        for var in self.vars.values() {
-            match grads.get(var.as_tensor()) {
-                Some(g) => {
-                    parameters.extend(g.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
-                }
-                None => parameters.extend(std::iter::repeat_n(0.0, var.elem_count())),
+        fn run<T: Scalar>(
+            net: Net<'_, T>,
+            inputs: &FrameInputs,
+            grad_dv: &[[f64; 3]],
+        ) -> ResidualGrads {
+            let (_, tape) = net.forward(inputs);
+            let (flat, [x, v, s]) = net.backward(&tape, &to_rows(grad_dv));
+            ResidualGrads {
+                parameters: flat.iter().map(|g| g.widen()).collect(),
+                x_tilde: from_rows(&x),
+                v_tilde: from_rows(&v),
+                x_start: from_rows(&s),
             }
         }
-        let input_grad = |var: &Var| -> Result<Vec<[f64; 3]>, ResidualError> {
-            match grads.get(var.as_tensor()) {
-                Some(g) => to_rows(g),
-                None => Ok(vec![[0.0; 3]; inputs.particle_count()]),
-            }
-        };
-        Ok(ResidualGrads {
-            parameters,
-            x_tilde: input_grad(&x)?,
-            v_tilde: input_grad(&v)?,
-            x_start: input_grad(&s)?,
+        Ok(match &self.weights {
+            Weights::F32(w) => run(self.net(w), inputs, grad_dv),
+            Weights::F64(w) => run(self.net(w), inputs, grad_dv),
         })
     }
 
     pub fn parameter_count(&self) -> usize {
-        self.vars.values().map(|v| v.elem_count()).sum()
+        self.layout.total
     }
 
-    /// All weights as one flat vector (sorted by tensor name).
+    /// All weights as one flat vector (tensors sorted by name).
     pub fn parameters(&self) -> Result<Vec<f64>, ResidualError> {
-        let mut out = Vec::with_capacity(self.parameter_count());
-        for var in self.vars.values() {
-            out.extend(
-                var.as_tensor()
-                    .to_dtype(DType::F64)?
-                    .flatten_all()?
-                    .to_vec1::<f64>()?,
-            );
-        }
-        Ok(out)
+        Ok(match &self.weights {
+            Weights::F32(w) => w.iter().map(|v| f64::from(*v)).collect(),
+            Weights::F64(w) => w.clone(),
+        })
     }
 
     /// Replaces all weights from a flat vector in [`Residual::parameters`] order.
@@ -500,72 +793,105 @@ impl Residual {
                 problem: "not finite".into(),
             });
         }
-        let mut offset = 0;
-        for var in self.vars.values() {
-            let count = var.elem_count();
-            let t = Tensor::from_vec(
-                values[offset..offset + count].to_vec(),
-                var.shape(),
-                &Device::Cpu,
-            )?
-            .to_dtype(self.dtype)?;
-            var.set(&t)?;
-            offset += count;
+        match &mut self.weights {
+            Weights::F32(w) => w.iter_mut().zip(values).for_each(|(w, v)| *w = *v as f32),
+            Weights::F64(w) => w.copy_from_slice(values),
         }
         Ok(())
     }
 
-    /// Writes the weights as safetensors (to a temporary name, then renamed).
+    /// Writes the weights as safetensors in the network's precision (to a
+    /// temporary name, then renamed).
     pub fn save(&self, path: &Path) -> Result<(), ResidualError> {
-        let tensors: HashMap<String, Tensor> = self
-            .vars
-            .iter()
-            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-            .collect();
         let file_err = |e: &dyn std::fmt::Display| ResidualError::File {
             path: path.to_path_buf(),
             problem: format!("writing weights: {e}"),
         };
+        let (dtype, bytes): (safetensors::Dtype, Vec<u8>) = match &self.weights {
+            Weights::F32(w) => (
+                safetensors::Dtype::F32,
+                w.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            ),
+            Weights::F64(w) => (
+                safetensors::Dtype::F64,
+                w.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            ),
+        };
+        let element = bytes.len() / self.layout.total.max(1);
+        let mut views = Vec::with_capacity(self.layout.tensors.len());
+        for (name, (shape, _)) in &self.layout.tensors {
+            let range = self.layout.range(name);
+            let view = safetensors::tensor::TensorView::new(
+                dtype,
+                shape.clone(),
+                &bytes[range.start * element..range.end * element],
+            )
+            .map_err(|e| file_err(&e))?;
+            views.push((name.clone(), view));
+        }
         let mut tmp = path.as_os_str().to_owned();
         tmp.push(".tmp");
         let tmp = std::path::PathBuf::from(tmp);
-        candle_core::safetensors::save(&tensors, &tmp).map_err(|e| file_err(&e))?;
+        safetensors::serialize_to_file(views, None, &tmp).map_err(|e| file_err(&e))?;
         std::fs::rename(&tmp, path).map_err(|e| file_err(&e))
     }
 
-    /// Loads weights saved by [`Residual::save`] for `spec`, checking every
-    /// tensor's name and shape.
-    pub fn load(spec: ResidualSpec, path: &Path, dtype: DType) -> Result<Self, ResidualError> {
-        let mut residual = Self::new(spec, dtype)?;
-        let loaded = candle_core::safetensors::load(path, &Device::Cpu).map_err(|e| {
-            ResidualError::File {
-                path: path.to_path_buf(),
-                problem: format!("reading weights: {e}"),
+    /// Loads weights saved by [`Residual::save`] (f32 or f64) for `spec`,
+    /// checking every tensor's name and shape.
+    pub fn load(
+        spec: ResidualSpec,
+        path: &Path,
+        precision: Precision,
+    ) -> Result<Self, ResidualError> {
+        let mut residual = Self::new(spec, precision)?;
+        let file_err = |problem: String| ResidualError::File {
+            path: path.to_path_buf(),
+            problem,
+        };
+        let bytes = std::fs::read(path).map_err(|e| file_err(format!("reading weights: {e}")))?;
+        let loaded = safetensors::SafeTensors::deserialize(&bytes)
+            .map_err(|e| file_err(format!("reading weights: {e}")))?;
+        let mut values = vec![0.0; residual.layout.total];
+        for (name, (shape, _)) in &residual.layout.tensors {
+            let tensor = loaded
+                .tensor(name)
+                .map_err(|_| file_err(format!("tensor `{name}` is missing")))?;
+            if tensor.shape() != shape.as_slice() {
+                return Err(file_err(format!(
+                    "tensor `{name}` has shape {:?}, expected {shape:?}",
+                    tensor.shape()
+                )));
             }
-        })?;
-        for (name, var) in &mut residual.vars {
-            let tensor = loaded.get(name).ok_or_else(|| ResidualError::File {
-                path: path.to_path_buf(),
-                problem: format!("tensor `{name}` is missing"),
-            })?;
-            if tensor.shape() != var.shape() {
-                return Err(ResidualError::File {
-                    path: path.to_path_buf(),
-                    problem: format!(
-                        "tensor `{name}` has shape {:?}, expected {:?}",
-                        tensor.dims(),
-                        var.dims()
-                    ),
-                });
+            let data = tensor.data();
+            let target = &mut values[residual.layout.range(name)];
+            match tensor.dtype() {
+                safetensors::Dtype::F32 => {
+                    for (t, b) in target.iter_mut().zip(data.chunks_exact(4)) {
+                        *t = f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+                    }
+                }
+                safetensors::Dtype::F64 => {
+                    for (t, b) in target.iter_mut().zip(data.chunks_exact(8)) {
+                        *t = f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]);
+                    }
+                }
+                other => {
+                    return Err(file_err(format!(
+                        "tensor `{name}` is {other:?}, expected F32 or F64"
+                    )));
+                }
             }
-            var.set(&tensor.to_dtype(dtype)?)?;
         }
-        if loaded.len() != residual.vars.len() {
-            return Err(ResidualError::File {
-                path: path.to_path_buf(),
-                problem: format!("{} tensors, expected {}", loaded.len(), residual.vars.len()),
-            });
+        if loaded.len() != residual.layout.tensors.len() {
+            return Err(file_err(format!(
+                "{} tensors, expected {}",
+                loaded.len(),
+                residual.layout.tensors.len()
+            )));
         }
+        residual
+            .set_parameters(&values)
+            .map_err(|e| file_err(format!("{e}")))?;
         Ok(residual)
     }
 }

@@ -1,10 +1,10 @@
 //! Issue 4: the residual network's bound, its vector-Jacobian product
 //! against central finite differences in f64, save/load, determinism.
 
-use candle_core::DType;
+use dm_residual::Precision;
 use dm_residual::{FrameInputs, HISTORY, NetworkSize, Residual, ResidualKind, ResidualSpec};
 
-/// Relative error allowed between the candle VJP and central differences
+/// Relative error allowed between the hand-written VJP and central differences
 /// in f64: the network is smooth away from ReLU/max-pool kinks and stencil
 /// cell changes, which a 1e-6 step almost surely does not cross; what is
 /// left is round-off (~1e-10 / 1e-6) and the O(h²) truncation.
@@ -65,8 +65,8 @@ fn cloud(n: usize, seed: u64) -> FrameInputs {
 }
 
 /// Non-zero weights everywhere (the fresh network's last layer is zero).
-fn randomised(kind: ResidualKind, dtype: DType, scale: f64) -> Residual {
-    let mut net = Residual::new(spec(kind), dtype).expect("network");
+fn randomised(kind: ResidualKind, precision: Precision, scale: f64) -> Residual {
+    let mut net = Residual::new(spec(kind), precision).expect("network");
     let mut r = stream(17);
     let values: Vec<f64> = (0..net.parameter_count()).map(|_| scale * r()).collect();
     net.set_parameters(&values).expect("parameters");
@@ -98,7 +98,7 @@ fn shifted(points: &[[f64; 3]], direction: &[[f64; 3]], h: f64) -> Vec<[f64; 3]>
 }
 
 fn vjp_matches_finite_differences(kind: ResidualKind) {
-    let mut net = randomised(kind, DType::F64, 0.5);
+    let mut net = randomised(kind, Precision::F64, 0.5);
     let inputs = cloud(40, 5);
     let n = inputs.particle_count();
     let mut r = stream(23);
@@ -164,7 +164,7 @@ fn issue4_mlp_vjp_matches_finite_differences() {
 fn issue4_velocity_correction_never_exceeds_alpha() {
     for kind in [ResidualKind::Pgnd, ResidualKind::Mlp] {
         // Huge weights and inputs saturate the bound.
-        let net = randomised(kind, DType::F32, 20.0);
+        let net = randomised(kind, Precision::F32, 20.0);
         let mut inputs = cloud(300, 9);
         inputs
             .v_tilde
@@ -186,7 +186,7 @@ fn issue4_velocity_correction_never_exceeds_alpha() {
 
 #[test]
 fn issue4_untrained_residual_changes_nothing() {
-    let net = Residual::new(spec(ResidualKind::Pgnd), DType::F32).expect("network");
+    let net = Residual::new(spec(ResidualKind::Pgnd), Precision::F32).expect("network");
     let dv = net.predict(&cloud(50, 1)).expect("predict");
     assert!(dv.iter().flatten().all(|&c| c == 0.0));
 }
@@ -195,9 +195,9 @@ fn issue4_untrained_residual_changes_nothing() {
 fn issue4_weights_round_trip_and_bad_files_are_named() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("residual.safetensors");
-    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.3);
+    let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.3);
     net.save(&path).expect("save");
-    let loaded = Residual::load(spec(ResidualKind::Pgnd), &path, DType::F32).expect("load");
+    let loaded = Residual::load(spec(ResidualKind::Pgnd), &path, Precision::F32).expect("load");
     assert_eq!(
         net.parameters().expect("p"),
         loaded.parameters().expect("p")
@@ -210,7 +210,7 @@ fn issue4_weights_round_trip_and_bad_files_are_named() {
 
     let mut other = spec(ResidualKind::Pgnd);
     other.size.decoder = 32;
-    let err = Residual::load(other, &path, DType::F32).expect_err("shape mismatch");
+    let err = Residual::load(other, &path, Precision::F32).expect_err("shape mismatch");
     let message = err.to_string();
     assert!(
         message.contains("residual.safetensors") && message.contains("shape"),
@@ -218,13 +218,13 @@ fn issue4_weights_round_trip_and_bad_files_are_named() {
     );
 
     std::fs::write(&path, b"not safetensors").expect("write");
-    let err = Residual::load(spec(ResidualKind::Pgnd), &path, DType::F32).expect_err("garbage");
+    let err = Residual::load(spec(ResidualKind::Pgnd), &path, Precision::F32).expect_err("garbage");
     assert!(err.to_string().contains("residual.safetensors"), "{err}");
 }
 
 #[test]
 fn issue4_bad_inputs_name_the_field() {
-    let net = Residual::new(spec(ResidualKind::Mlp), DType::F32).expect("network");
+    let net = Residual::new(spec(ResidualKind::Mlp), Precision::F32).expect("network");
     let mut inputs = cloud(10, 4);
     inputs.v_tilde[3][0] = f64::NAN;
     let err = net.predict(&inputs).expect_err("NaN input");
@@ -244,7 +244,7 @@ fn issue4_bad_inputs_name_the_field() {
 
 #[test]
 fn issue4_prediction_is_independent_of_thread_count() {
-    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.3);
+    let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.3);
     let inputs = cloud(2000, 8);
     let run = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
@@ -267,7 +267,7 @@ fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
         grid_dx: 1.0 / 32.0,
         ..spec(ResidualKind::Pgnd)
     };
-    let mut net = Residual::new(method_sized, DType::F32).expect("network");
+    let mut net = Residual::new(method_sized, Precision::F32).expect("network");
     // Gradient-aligned: every weight moves the same way (a sign pattern
     // with random signs would mostly cancel).
     let stepped: Vec<f64> = net
@@ -299,7 +299,7 @@ fn issue4_vjp_is_finite_where_a_node_gets_a_vanishing_spline_weight() {
     let edge = s.grid_origin[0] + 14.5 * s.grid_dx - 1e-7;
     inputs.x_tilde[0] = [edge; 3];
     inputs.x_start[0] = [edge; 3];
-    let net = randomised(ResidualKind::Pgnd, DType::F32, 0.5);
+    let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.5);
     let dv = net.predict(&inputs).expect("predict");
     assert!(dv.iter().flatten().all(|c| c.is_finite()));
     let grad_dv = vec![[1.0, -0.5, 0.25]; inputs.particle_count()];

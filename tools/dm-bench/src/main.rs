@@ -191,7 +191,7 @@ fn residual_frame(particles: usize, grid: usize, repeats: usize) -> Result<()> {
             domain_size: config.domain_size,
             seed: 0,
         },
-        candle_core::DType::F32,
+        dm_residual::Precision::F32,
     )?;
     // Non-zero last layer, so the backward pass does all its work.
     let weights: Vec<f64> = (0..network.parameter_count())

@@ -262,3 +262,73 @@ fn issue3_bad_hand_smoothing_is_refused() {
     // Nothing is written, not even an empty output directory.
     assert!(!out.exists(), "a refused run created {}", out.display());
 }
+
+/// The whole fit — gain search, material stages, the residual network and
+/// its check, stage 3 — writes bitwise the same files on one thread as on
+/// two: every parallel sum runs over fixed ranges in a fixed order.
+#[test]
+fn fit_writes_the_same_files_on_one_and_two_threads() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = tiny_scene(dir.path(), Preset::Toy, 6);
+    let run = |threads: &str| {
+        let out = dir.path().join(format!("threads{threads}"));
+        let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
+            .arg(&scene)
+            .arg("--out")
+            .arg(&out)
+            .args(FAST_PHYSICS)
+            .args([
+                "--residual",
+                "pgnd",
+                "--residual-iters",
+                "2",
+                "--rgb-iters",
+                "1",
+            ])
+            .env("RAYON_NUM_THREADS", threads)
+            .output()
+            .expect("dm-fit runs");
+        assert!(
+            output.status.success(),
+            "{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        out
+    };
+    let (one, two) = (run("1"), run("2"));
+    let files = [
+        "model.json",
+        "youngs_pa.npy",
+        "poisson.npy",
+        "expert_weights.npy",
+        "gaussians.ply",
+    ];
+    for file in files {
+        let read = |dir: &Path| std::fs::read(dir.join(file)).expect(file);
+        assert!(
+            read(&one) == read(&two),
+            "{file} differs between 1 and 2 threads"
+        );
+    }
+    // The reports' numbers too, all but the wall-clock times.
+    for report in ["fit_report.json", "appearance.json"] {
+        let numbers = |dir: &Path| {
+            let text = std::fs::read_to_string(dir.join(report)).expect(report);
+            let mut value: serde_json::Value = serde_json::from_str(&text).expect(report);
+            strip_seconds(&mut value);
+            value
+        };
+        assert_eq!(numbers(&one), numbers(&two), "{report}");
+    }
+}
+
+fn strip_seconds(value: &mut serde_json::Value) {
+    match value {
+        serde_json::Value::Object(map) => {
+            map.retain(|key, _| !key.contains("seconds"));
+            map.values_mut().for_each(strip_seconds);
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(strip_seconds),
+        _ => {}
+    }
+}

@@ -40,6 +40,7 @@ pub fn quick_fit_options() -> FitOptions {
         rgb_weight: dm_fit::rgb_stage::DEFAULT_RGB_WEIGHT,
         // A candidate's fit learns its drag or viscosity beside the material.
         freeze_effects: false,
+        damping: dm_fit::run::ParticleDamping::Fixed,
         // The diagnosis reads no Cramér–Rao bound.
         identifiability: false,
         track_noise_mm: dm_fit::identifiability::DEFAULT_TRACK_NOISE_MM,

@@ -64,6 +64,14 @@ pub const DENSITY_AXIS_GROUP: &str = "density_axis_turn";
 /// step at the default, so a quick fit's four steps can turn a cloth's
 /// axis by its 45° of ambiguity.
 pub const DENSITY_AXIS_RATE_FACTOR: f64 = 2.0;
+/// Adam's group of the particle damping rate's natural log.
+pub const DAMPING_GROUP: &str = "particle_damping_log";
+/// The damping's Adam rate relative to the effect rate: 0.3 per step at
+/// the default, so a quick fit's six material steps can take it from the
+/// thin objects' 20 /s down to about 3 /s.
+pub const DAMPING_RATE_FACTOR: f64 = 3.0;
+/// The lowest learnt particle damping rate, 1/s.
+pub const MIN_PARTICLE_DAMPING: f64 = 0.5;
 /// Below this |h| (≈ 0.006°) gravity counts as untilted: the tilt is off.
 const TILT_OFF: f64 = 1e-4;
 
@@ -300,6 +308,33 @@ fn turn_direction(particles: &[[f64; 3]], axis: [f64; 3]) -> [f64; 3] {
     (b / length).into()
 }
 
+/// Appends the particle damping rate's group (its natural log) to
+/// `params` and its gradient to `grads`.
+pub fn add_damping_group(
+    physics: &PhysicsConfig,
+    effect_grads: &EffectGrads,
+    params: ParamSet,
+    grads: ParamSet,
+) -> Result<(ParamSet, ParamSet), OptimError> {
+    let rate = physics.particle_damping.max(MIN_PARTICLE_DAMPING);
+    Ok((
+        params.with_group(DAMPING_GROUP, vec![rate.ln()])?,
+        grads.with_group(DAMPING_GROUP, vec![rate * effect_grads.particle_damping])?,
+    ))
+}
+
+/// Writes the stepped damping back, within [`MIN_PARTICLE_DAMPING`] and
+/// `ceiling` (the category's default): a fit may remove damping the
+/// object does not have, but adds none — extra drag is an effect for the
+/// diagnosis to name, not a setting to absorb.
+pub fn write_back_damping(physics: &mut PhysicsConfig, params: &ParamSet, ceiling: f64) {
+    if let Some(&[log]) = params.get(DAMPING_GROUP) {
+        physics.particle_damping = log
+            .exp()
+            .clamp(MIN_PARTICLE_DAMPING, ceiling.max(MIN_PARTICLE_DAMPING));
+    }
+}
+
 /// [`write_back`] of the terms in `physics`.
 fn write_back_physics(physics: &mut PhysicsConfig, params: &ParamSet) {
     if let Some(logs) = params.get(EFFECTS_GROUP) {
@@ -409,5 +444,31 @@ mod tests {
         for a in 0..3 {
             assert!((physics.gravity[a] - before.gravity[a]).abs() < 1e-12);
         }
+    }
+
+    /// The damping group holds ln c with gradient c ∂L/∂c, and writing it
+    /// back keeps c within [MIN_PARTICLE_DAMPING, the category default].
+    #[test]
+    fn damping_group_is_the_log_rate_and_stays_below_the_default() {
+        let mut physics = PhysicsConfig::thin_object([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
+        let grads = EffectGrads {
+            particle_damping: -0.25,
+            ..EffectGrads::default()
+        };
+        let (params, g) =
+            add_damping_group(&physics, &grads, ParamSet::new(), ParamSet::new()).expect("group");
+        assert_eq!(params.get(DAMPING_GROUP), Some(&[20f64.ln()][..]));
+        assert_eq!(g.get(DAMPING_GROUP), Some(&[20.0 * -0.25][..]));
+        let set = |log: f64| {
+            ParamSet::new()
+                .with_group(DAMPING_GROUP, vec![log])
+                .expect("set")
+        };
+        write_back_damping(&mut physics, &set(5f64.ln()), 20.0);
+        assert!((physics.particle_damping - 5.0).abs() < 1e-12);
+        write_back_damping(&mut physics, &set(40f64.ln()), 20.0);
+        assert_eq!(physics.particle_damping, 20.0, "never above the default");
+        write_back_damping(&mut physics, &set(-10.0), 20.0);
+        assert_eq!(physics.particle_damping, MIN_PARTICLE_DAMPING);
     }
 }

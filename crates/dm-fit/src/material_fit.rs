@@ -74,6 +74,10 @@ pub struct MaterialFitConfig {
     /// ([`crate::learnt_effects`]).
     #[serde(default = "learn_effects_by_default")]
     pub learn_effects: bool,
+    /// Also step the particle damping rate, at most the category's default
+    /// ([`crate::learnt_effects::write_back_damping`]).
+    #[serde(default)]
+    pub learn_damping: bool,
 }
 
 fn learn_effects_by_default() -> bool {
@@ -98,6 +102,13 @@ impl MaterialFitConfig {
                 config.group_learning_rates.insert(group.into(), rate);
             }
         }
+        if self.learn_damping && !self.freeze_material {
+            config.group_learning_rates.insert(
+                learnt_effects::DAMPING_GROUP.into(),
+                learnt_effects::DAMPING_RATE_FACTOR
+                    * self.effect_learning_rate.unwrap_or(self.learning_rate),
+            );
+        }
         Adam::new(config)
     }
 }
@@ -113,6 +124,7 @@ impl Default for MaterialFitConfig {
             residual_learning_rate: 5e-3,
             freeze_material: false,
             learn_effects: true,
+            learn_damping: false,
         }
     }
 }
@@ -442,6 +454,11 @@ pub fn material_step(
         (params, all_grads) =
             learnt_effects::add_groups(model, &grads.effects, &grads.extension, params, all_grads)?;
     }
+    let learn_damping = config.learn_damping && !config.freeze_material;
+    if learn_damping {
+        (params, all_grads) =
+            learnt_effects::add_damping_group(&model.physics, &grads.effects, params, all_grads)?;
+    }
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
     if let (Some(residual_grads), Some(state)) = (grads.residual, model.residual.as_ref()) {
@@ -470,6 +487,13 @@ pub fn material_step(
     }
     if learn_effects {
         learnt_effects::write_back(model, &params);
+    }
+    if learn_damping {
+        learnt_effects::write_back_damping(
+            &mut model.physics,
+            &params,
+            dm_model::default_particle_damping(bundle.meta.category),
+        );
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

@@ -85,6 +85,12 @@ pub struct FitOptions {
     #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
+    /// The particle damping rate: learnt in the material stages (at most
+    /// the category's default, docs/fit.md) or kept at that default. Run
+    /// records written before the option existed read as `fixed`, as they ran.
+    #[arg(long, value_enum, default_value_t = ParticleDamping::Fixed)]
+    #[serde(default)]
+    pub damping: ParticleDamping,
     /// Keep the effect terms a start model carries (drag, viscosity,
     /// friction, a ground tilt) fixed instead of learning them.
     #[arg(long)]
@@ -152,6 +158,17 @@ impl FitOptions {
             offset_sigma_m: 1e-3 * self.track_offset_mm,
         }
     }
+}
+
+/// Whether a fit learns the particle damping rate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ParticleDamping {
+    /// The category's default (method.md §2).
+    #[default]
+    Fixed,
+    /// Stepped with the material, between 0.5 /s and the default.
+    Learnt,
 }
 
 /// Which iterate of the residual-only stage the fit keeps.
@@ -283,6 +300,7 @@ pub(crate) fn material_config(options: &FitOptions, iterations: usize) -> Materi
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
         learn_effects: !options.freeze_effects,
+        learn_damping: options.damping == ParticleDamping::Learnt,
     }
 }
 
@@ -656,6 +674,7 @@ pub(crate) fn fit_stages(
         material: serde_json::json!({
             "E_median_pa": youngs,
             "nu_median": poisson,
+            "particle_damping_per_s": state.model.physics.particle_damping,
             "sensitivity": sensitivity,
             "identifiability": identifiability,
         }),

@@ -113,6 +113,19 @@ const MAX_HAND_SMOOTHING_FRAMES: f64 = 30.0;
 const MIN_GRASP_RADIUS_M: f64 = 0.001;
 const MAX_GRASP_RADIUS_M: f64 = 0.2;
 
+/// method.md §2's physics defaults of a category (unit domain at the origin).
+fn category_physics(category: Category, up: [f64; 3]) -> PhysicsConfig {
+    match category {
+        Category::Volumetric => PhysicsConfig::volumetric([0.0; 3], 1.0, up),
+        _ => PhysicsConfig::thin_object([0.0; 3], 1.0, up),
+    }
+}
+
+/// The particle damping rate (1/s) a model of `category` starts with.
+pub fn default_particle_damping(category: Category) -> f64 {
+    category_physics(category, [0.0, 0.0, 1.0]).particle_damping
+}
+
 /// A world model ready to roll out.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorldModel {
@@ -233,10 +246,7 @@ impl WorldModel {
                 hi[a] = hi[a].max(floor_coord + 0.02 * up[a].abs());
             }
         }
-        let mut physics = match meta.category {
-            Category::Volumetric => PhysicsConfig::volumetric([0.0; 3], 1.0, up),
-            _ => PhysicsConfig::thin_object([0.0; 3], 1.0, up),
-        };
+        let mut physics = category_physics(meta.category, up);
         physics.grid_res = options.grid;
         let (origin, size) = cube_domain_containing(
             lo,

@@ -5,13 +5,13 @@
 //! and `World::backward_frame` exactly as the fit chains them, against
 //! central finite differences.
 
-use dm_residual::Precision;
 use dm_model::residual::{
     FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Mat3, Vec3};
 use dm_mpm::{ActuatorConfig, ParticleMaterial, PhysicsConfig, World};
+use dm_residual::Precision;
 use dm_residual::{NetworkSize, Residual, ResidualKind, ResidualSpec};
 
 /// Two frames of 6 substeps and two network passes compose many f64

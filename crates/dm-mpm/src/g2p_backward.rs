@@ -47,11 +47,13 @@ fn xyz<T: Real>(l: T::Lane4) -> Vec3<T> {
 }
 
 /// What pass 1 of [`g2p_backward`] hands to its scatter, per particle: the
-/// adjoints of the gathered velocity ṽ and of B = Σ w u (x_i − x_p)ᵀ.
+/// adjoints of the gathered velocity ṽ and of B = Σ w u (x_i − x_p)ᵀ, and
+/// the particle's share of the damping factor κ's adjoint, v̄'·ṽ.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct GatherAdjoint<T: Real> {
     pub v_tilde: Vec3<T>,
     pub b: Mat3<T>,
+    pub damping: T,
 }
 
 /// Adjoint of `g2p`. `x`, `f` are the particle state before the gather,
@@ -59,7 +61,8 @@ pub struct GatherAdjoint<T: Real> {
 /// gather's outputs. Writes the adjoint of x and F into `grad_in` (v and C
 /// are not read by the gather: their entries are left untouched), the
 /// adjoint of the node velocities into `grad_u` (overwritten) and uses
-/// `gather_bar` as per-particle scratch.
+/// `gather_bar` as per-particle scratch. Returns the adjoint of the
+/// particle damping factor κ (summed over particles in order).
 pub fn g2p_backward<T: Real>(
     k: &Consts<T>,
     schedule: &BlockSchedule,
@@ -71,7 +74,7 @@ pub fn g2p_backward<T: Real>(
     grad_u: &mut NodeVelocityGrads<T>,
     gather_bar: &mut Vec<GatherAdjoint<T>>,
     scatter_spare: &mut Vec<Vec<T::Lane4>>,
-) {
+) -> T {
     let n = x.len();
     let res = k.res;
     let apic_scale = T::lit(4.0) * k.inv_dx * k.inv_dx;
@@ -124,8 +127,12 @@ pub fn g2p_backward<T: Real>(
             *bar = GatherAdjoint {
                 v_tilde: vt_bar,
                 b: bbar,
+                damping: v_new_bar.dot(&v_tilde),
             };
         });
+    let damping = gather_bar
+        .iter()
+        .fold(T::zero(), |sum, bar| sum + bar.damping);
 
     // Pass 2 (scatter, deterministic parts): ū_i += w (ṽ̄ + B̄ (x_i − x_p)),
     // an affine field in the node offset: ṽ̄ − B̄ frac dx + B̄ dx (i, j, k).
@@ -134,11 +141,12 @@ pub fn g2p_backward<T: Real>(
     let zero = T::zero();
     let lanes = |v: Vec3<T>| T::Lane4::from_array([v.x, v.y, v.z, zero]);
     schedule.scatter(k, x, grad_u, scatter_spare, |p, st, nodes| {
-        let GatherAdjoint { v_tilde, b } = gather_bar[p];
+        let GatherAdjoint { v_tilde, b, .. } = gather_bar[p];
         let q0 = lanes(v_tilde - b * (st.frac * k.dx));
         let cols = [0, 1, 2].map(|c| lanes(b.column(c) * k.dx));
         scatter_affine::<T>(st, q0, cols, nodes);
     });
+    damping
 }
 
 /// Position adjoint of the gather through the weights and node offsets,

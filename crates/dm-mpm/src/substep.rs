@@ -107,6 +107,8 @@ pub struct SubstepGrads<T> {
     pub gravity: Vec3<T>,
     /// Adjoint of the floor's Coulomb friction μ.
     pub friction: T,
+    /// Adjoint of the per-substep particle damping factor κ = e^(−c dt).
+    pub damping_factor: T,
     /// Adjoint of each particle's mass (a density gradient's parameter).
     pub mass: Vec<T>,
 }
@@ -220,6 +222,7 @@ impl<T: Real> SubstepGrads<T> {
             viscosity: T::zero(),
             gravity: Vec3::zeros(),
             friction: T::zero(),
+            damping_factor: T::zero(),
             mass: vec![T::zero(); n],
         }
     }
@@ -297,7 +300,7 @@ pub(crate) fn substep_backward_into<T: Real>(
     );
 
     grads.resize(n);
-    g2p_backward(
+    grads.damping_factor = g2p_backward(
         k,
         schedule,
         &scratch.grid,

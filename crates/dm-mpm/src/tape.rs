@@ -116,6 +116,8 @@ pub struct EffectGrads {
     pub gravity: [f64; 3],
     /// ∂L/∂μ, the floor's Coulomb friction.
     pub floor_friction: f64,
+    /// ∂L/∂c, the particle damping rate (1/s; `PhysicsConfig::particle_damping`).
+    pub particle_damping: f64,
 }
 
 impl std::ops::AddAssign for EffectGrads {
@@ -124,6 +126,7 @@ impl std::ops::AddAssign for EffectGrads {
         self.air_drag_quadratic += other.air_drag_quadratic;
         self.viscosity += other.viscosity;
         self.floor_friction += other.floor_friction;
+        self.particle_damping += other.particle_damping;
         for a in 0..3 {
             self.gravity[a] += other.gravity[a];
         }
@@ -221,6 +224,9 @@ impl<T: Real> World<T> {
             }
             effects.viscosity += step.viscosity.to_f64();
             effects.floor_friction += step.friction.to_f64();
+            // κ = e^(−c dt): ∂κ/∂c = −dt κ.
+            effects.particle_damping -=
+                (step.damping_factor * k.dt * k.particle_damping_factor).to_f64();
             for a in 0..3 {
                 effects.gravity[a] += step.gravity[a].to_f64();
             }

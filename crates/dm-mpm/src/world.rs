@@ -256,6 +256,13 @@ impl<T: Real> World<T> {
         self.replace_config(config)
     }
 
+    /// Sets the particle damping rate (1/s) from the next substep.
+    pub fn set_particle_damping(&mut self, rate: f64) -> Result<(), SimError> {
+        let mut config = self.config.clone();
+        config.particle_damping = rate;
+        self.replace_config(config)
+    }
+
     /// Validates `config` and rebuilds the substep constants from it.
     fn replace_config(&mut self, config: PhysicsConfig) -> Result<(), SimError> {
         config.validate()?;

@@ -392,6 +392,35 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
     }
 }
 
+/// The particle damping rate through a whole frame: every substep scales
+/// the gathered velocities by e^(−c dt), actuators coupled.
+#[test]
+fn frame_adjoint_of_the_particle_damping_rate_matches_finite_differences() {
+    let rate = 20.0;
+    let mut w = world_with(|config| config.particle_damping = rate);
+    let n = w.particle_count();
+    let start = w.state();
+    let to = anchors_to();
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let probe = position_velocity_probe(&mut rng, n);
+    let tape = w
+        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
+        .expect("taped frame");
+    let analytic = w
+        .backward_frame(&tape, &probe)
+        .expect("backward")
+        .effects
+        .particle_damping;
+    assert!(analytic != 0.0, "the frame must depend on the damping");
+    // A relative step, as for the effect coefficients above.
+    check("particle_damping", analytic * rate, &mut |h| {
+        w.set_particle_damping(rate * (1.0 + h)).expect("damping");
+        w.set_state(&start).expect("state");
+        w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+        loss(&w.state(), &probe)
+    });
+}
+
 /// The floor plane of the friction frame: grid nodes at z ≤ 0.03 (row 4 of
 /// 16, z = 0.025, inside the support of the lowest particles at z = 0.06)
 /// are floor nodes.

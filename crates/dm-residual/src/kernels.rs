@@ -65,7 +65,7 @@ pub struct BufferPool<T> {
 }
 
 /// Most bytes a thread's pool keeps.
-const POOL_BYTES: usize = 256 << 20;
+const POOL_BYTES: usize = 128 << 20;
 /// Buffers smaller than this go back to the allocator.
 const POOLED_MIN_BYTES: usize = 64 << 10;
 
@@ -132,9 +132,9 @@ impl<T: Scalar> Rows<T> {
         m
     }
 
-    /// A matrix holding `values` (row-major).
-    pub fn from_values(values: impl IntoIterator<Item = T>, width: usize) -> Self {
-        let mut m = Self::uninitialised(0, width);
+    /// A matrix holding the `len` `values` (row-major).
+    pub fn from_values(values: impl IntoIterator<Item = T>, len: usize, width: usize) -> Self {
+        let mut m = Self::uninitialised(len, width);
         m.data.extend(values);
         m
     }
@@ -283,7 +283,8 @@ impl<'a, T: Scalar> Dense<'a, T> {
     }
 }
 
-fn add_into<T: Scalar>(target: &mut [T], values: &[T]) {
+/// target += values, element by element.
+pub(crate) fn add_into<T: Scalar>(target: &mut [T], values: &[T]) {
     for (t, v) in target.iter_mut().zip(values) {
         *t = *t + *v;
     }
@@ -492,12 +493,17 @@ pub struct Bound {
 const BOUND_EPSILON: f64 = 1e-12;
 
 impl Bound {
+    /// y' = k·y and |y'| (offset so that a zero row stays finite).
+    fn scaled<T: Scalar>(&self, row: &[T]) -> ([T; 3], T) {
+        let scaled = [0, 1, 2].map(|a| row[a] * T::lit(self.scale));
+        let squared = scaled.iter().fold(T::zero(), |s, v| s + *v * *v);
+        (scaled, (squared + T::lit(BOUND_EPSILON)).sqrt())
+    }
+
     pub fn forward<T: Scalar>(&self, y: &Rows<T>) -> Rows<T> {
         let mut out = y.clone();
         out.data.par_chunks_mut(3).for_each(|row| {
-            let scaled = [0, 1, 2].map(|a| row[a] * T::lit(self.scale));
-            let radius =
-                (scaled.iter().fold(T::zero(), |s, v| s + *v * *v) + T::lit(BOUND_EPSILON)).sqrt();
+            let (scaled, radius) = self.scaled(row);
             let factor = T::lit(self.alpha) * radius.tanh() / radius;
             for a in 0..3 {
                 row[a] = factor * scaled[a];
@@ -514,10 +520,7 @@ impl Bound {
             .zip(y.data.par_chunks(3))
             .for_each(|(g, row)| {
                 let k = T::lit(self.scale);
-                let scaled = [0, 1, 2].map(|a| row[a] * k);
-                let radius = (scaled.iter().fold(T::zero(), |s, v| s + *v * *v)
-                    + T::lit(BOUND_EPSILON))
-                .sqrt();
+                let (scaled, radius) = self.scaled(row);
                 let t = radius.tanh();
                 let q = t / radius;
                 // q(r) = tanh r / r: q' = (1 − tanh² r)/r − tanh r / r².

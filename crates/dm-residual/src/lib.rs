@@ -20,9 +20,9 @@
 //! (x̃, ṽ, x_t), which it adds to the MPM state adjoint.
 
 pub mod features;
-pub mod kernels;
+mod kernels;
 pub mod network;
-pub mod transfer;
+mod transfer;
 
 pub use features::{CHANNELS, FrameInputs, HISTORY};
 pub use network::{NetworkSize, Precision, Residual, ResidualGrads, ResidualKind, ResidualSpec};

@@ -11,7 +11,8 @@
 use crate::ResidualError;
 use crate::features::{CHANNELS, FrameInputs, HISTORY};
 use crate::kernels::{
-    Bound, Dense, GroupNorm, NormTape, Rows, Scalar, column_max, column_sums, relu, relu_backward,
+    Bound, Dense, GroupNorm, NormTape, Rows, Scalar, add_into, column_max, column_sums, relu,
+    relu_backward,
 };
 use crate::transfer::{self, Stencil};
 use serde::{Deserialize, Serialize};
@@ -195,7 +196,11 @@ fn uniform_stream(seed: u64) -> impl FnMut() -> f64 {
 }
 
 fn to_rows<T: Scalar>(values: &[[f64; 3]]) -> Rows<T> {
-    Rows::from_values(values.iter().flatten().map(|v| T::lit(*v)), 3)
+    Rows::from_values(
+        values.iter().flatten().map(|v| T::lit(*v)),
+        3 * values.len(),
+        3,
+    )
 }
 
 fn from_rows<T: Scalar>(m: &Rows<T>) -> Vec<[f64; 3]> {
@@ -231,7 +236,7 @@ struct GridTape<T: Scalar> {
     global_at: Vec<usize>,
     feature: Rows<T>,
     stencil: Stencil,
-    weights: Rows<T>,
+    spline_weights: Rows<T>,
     node_feature: Rows<T>,
     weight_sums: Vec<T>,
     encoding: Rows<T>,
@@ -354,7 +359,8 @@ impl<'a, T: Scalar> Net<'a, T> {
                 let (dv, tape) = self.grid_forward(&x_tilde, &channels, inputs);
                 (dv, BodyTape::Pgnd(Box::new(tape)))
             }
-            _ => {
+            ResidualKind::Mlp | ResidualKind::None => {
+                // `Residual::new` refuses `None`.
                 let mut h1 = self.dense("mlp1").forward(&[&channels], None);
                 relu(&mut h1);
                 let mut h2 = self.dense("mlp2").forward(&[&h1], None);
@@ -413,9 +419,9 @@ impl<'a, T: Scalar> Net<'a, T> {
         let feature = enc3.forward(&[&h2], Some(&bias));
 
         let stencil = Stencil::new(&inputs.x_tilde, s.grid_origin, s.grid_dx);
-        let weights = transfer::spline_weights(x_tilde, &stencil, s.grid_origin, s.grid_dx);
+        let spline_weights = transfer::spline_weights(x_tilde, &stencil, s.grid_origin, s.grid_dx);
         let (node_feature, weight_sums) =
-            transfer::node_means(&feature, &weights, &stencil, MIN_NODE_WEIGHT);
+            transfer::node_means(&feature, &spline_weights, &stencil, MIN_NODE_WEIGHT);
         let encoding = self.node_encoding(&stencil);
         let mut d1 = self
             .dense("dec1")
@@ -429,7 +435,7 @@ impl<'a, T: Scalar> Net<'a, T> {
         relu(&mut d3);
         let raw = self.dense("dec4").forward(&[&d3], None);
         let node_velocity = self.bound().forward(&raw);
-        let dv = transfer::to_particles(&node_velocity, &weights, &stencil);
+        let dv = transfer::to_particles(&node_velocity, &spline_weights, &stencil);
         (
             dv,
             GridTape {
@@ -439,7 +445,7 @@ impl<'a, T: Scalar> Net<'a, T> {
                 global_at,
                 feature,
                 stencil,
-                weights,
+                spline_weights,
                 node_feature,
                 weight_sums,
                 encoding,
@@ -463,11 +469,11 @@ impl<'a, T: Scalar> Net<'a, T> {
         let mut weight_grad = vec![T::zero(); layer.weight.len()];
         let mut bias_grad = vec![T::zero(); layer.bias.len()];
         let out = layer.backward(blocks, grad, wanted, &mut weight_grad, &mut bias_grad);
-        add(
+        add_into(
             &mut flat[self.layout.range(&format!("{name}.weight"))],
             &weight_grad,
         );
-        add(
+        add_into(
             &mut flat[self.layout.range(&format!("{name}.bias"))],
             &bias_grad,
         );
@@ -485,11 +491,11 @@ impl<'a, T: Scalar> Net<'a, T> {
         let mut scale = vec![T::zero(); norm.scale.len()];
         let mut shift = vec![T::zero(); norm.shift.len()];
         let out = norm.backward(tape, grad, &mut scale, &mut shift);
-        add(
+        add_into(
             &mut flat[self.layout.range(&format!("{name}.norm.weight"))],
             &scale,
         );
-        add(
+        add_into(
             &mut flat[self.layout.range(&format!("{name}.norm.bias"))],
             &shift,
         );
@@ -508,15 +514,15 @@ impl<'a, T: Scalar> Net<'a, T> {
                     0,
                 );
                 relu_backward(h3, &mut d3);
-                let mut both = self.dense_backward(
+                let mut mlp3_inputs = self.dense_backward(
                     "mlp3",
                     &[h2, &tape.channels],
                     &d3,
                     &[true, true],
                     &mut flat,
                 );
-                let mut d2 = take_mut(&mut both, 0);
-                let d_channels_direct = take_mut(&mut both, 1);
+                let mut d2 = take_mut(&mut mlp3_inputs, 0);
+                let d_channels_direct = take_mut(&mut mlp3_inputs, 1);
                 relu_backward(h2, &mut d2);
                 let mut d1 = take(
                     self.dense_backward("mlp2", &[h1], &d2, &[true], &mut flat),
@@ -527,7 +533,7 @@ impl<'a, T: Scalar> Net<'a, T> {
                     self.dense_backward("mlp1", &[&tape.channels], &d1, &[true], &mut flat),
                     0,
                 );
-                add(&mut d_channels.data, &d_channels_direct.data);
+                add_into(&mut d_channels.data, &d_channels_direct.data);
                 (d_channels, None)
             }
             BodyTape::Pgnd(g) => {
@@ -538,7 +544,7 @@ impl<'a, T: Scalar> Net<'a, T> {
         };
         let mut inputs = Self::channels_backward(&d_channels);
         if let Some(dx) = d_x_weights {
-            add(&mut inputs[0].data, &dx.data);
+            add_into(&mut inputs[0].data, &dx.data);
         }
         (flat, inputs)
     }
@@ -555,21 +561,21 @@ impl<'a, T: Scalar> Net<'a, T> {
     ) -> (Rows<T>, Rows<T>) {
         let s = self.spec;
         let e2 = s.size.encoder[1];
-        let (d_node_velocity, mut d_weights) =
-            transfer::to_particles_backward(&g.node_velocity, &g.weights, &g.stencil, grad);
+        let (d_node_velocity, mut d_spline_weights) =
+            transfer::to_particles_backward(&g.node_velocity, &g.spline_weights, &g.stencil, grad);
         let d_raw = self.bound().backward(&g.raw, &d_node_velocity);
         let [d1, d2, d3] = &g.decoded;
         let mut dd3 = take(self.dense_backward("dec4", &[d3], &d_raw, &[true], flat), 0);
         relu_backward(d3, &mut dd3);
-        let mut three = self.dense_backward(
+        let mut dec3_inputs = self.dense_backward(
             "dec3",
             &[d2, &g.node_feature, &g.encoding],
             &dd3,
             &[true, true, false],
             flat,
         );
-        let mut dd2 = take_mut(&mut three, 0);
-        let mut d_node_feature = take_mut(&mut three, 1);
+        let mut dd2 = take_mut(&mut dec3_inputs, 0);
+        let mut d_node_feature = take_mut(&mut dec3_inputs, 1);
         relu_backward(d2, &mut dd2);
         let mut dd1 = take(self.dense_backward("dec2", &[d1], &dd2, &[true], flat), 0);
         relu_backward(d1, &mut dd1);
@@ -583,23 +589,23 @@ impl<'a, T: Scalar> Net<'a, T> {
             ),
             0,
         );
-        add(&mut d_node_feature.data, &from_dec1.data);
-        let (d_feature, d_weights_means) = transfer::node_means_backward(
+        add_into(&mut d_node_feature.data, &from_dec1.data);
+        let (d_feature, d_spline_weights_means) = transfer::node_means_backward(
             &g.feature,
-            &g.weights,
+            &g.spline_weights,
             &g.stencil,
             MIN_NODE_WEIGHT,
             &g.node_feature,
             &g.weight_sums,
             &d_node_feature,
         );
-        add(&mut d_weights.data, &d_weights_means.data);
+        add_into(&mut d_spline_weights.data, &d_spline_weights_means.data);
         let d_x = transfer::spline_weights_backward(
             x_tilde,
             &g.stencil,
             s.grid_origin,
             s.grid_dx,
-            &d_weights,
+            &d_spline_weights,
         );
 
         // enc3 with its pooled half folded into the bias.
@@ -637,12 +643,6 @@ impl<'a, T: Scalar> Net<'a, T> {
     }
 }
 
-fn add<T: Scalar>(target: &mut [T], values: &[T]) {
-    for (t, v) in target.iter_mut().zip(values) {
-        *t = *t + *v;
-    }
-}
-
 fn take<T: Scalar>(mut blocks: Vec<Option<Rows<T>>>, i: usize) -> Rows<T> {
     take_mut(&mut blocks, i)
 }
@@ -660,6 +660,12 @@ impl Residual {
             return Err(ResidualError::Input {
                 field: "kind".into(),
                 problem: "`none` has no network".into(),
+            });
+        }
+        if spec.size.decoder == 0 || spec.size.encoder.contains(&0) {
+            return Err(ResidualError::Input {
+                field: "size".into(),
+                problem: "every layer width must be positive".into(),
             });
         }
         let groups = spec.size.groups;
@@ -718,9 +724,36 @@ impl Residual {
         }
     }
 
+    /// Refuses what the grid transfer cannot index: particles beyond 1e9
+    /// cells of the grid's origin, or more slots than u32 counts.
+    fn check_grid(&self, inputs: &FrameInputs) -> Result<(), ResidualError> {
+        const FARTHEST_CELL: f64 = 1e9;
+        if inputs.particle_count() > (u32::MAX as usize) / 27 {
+            return Err(ResidualError::Input {
+                field: "x_tilde".into(),
+                problem: format!(
+                    "{} particles, at most {}",
+                    inputs.particle_count(),
+                    u32::MAX / 27
+                ),
+            });
+        }
+        let s = &self.spec;
+        for (p, x) in inputs.x_tilde.iter().enumerate() {
+            if (0..3).any(|a| ((x[a] - s.grid_origin[a]) / s.grid_dx).abs() >= FARTHEST_CELL) {
+                return Err(ResidualError::Input {
+                    field: "x_tilde".into(),
+                    problem: format!("particle {p} is more than 1e9 cells from the grid"),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Δv for one frame (m/s, caller's order).
     pub fn predict(&self, inputs: &FrameInputs) -> Result<Vec<[f64; 3]>, ResidualError> {
         inputs.validate()?;
+        self.check_grid(inputs)?;
         Ok(match &self.weights {
             Weights::F32(w) => from_rows(&self.net(w).forward(inputs).0),
             Weights::F64(w) => from_rows(&self.net(w).forward(inputs).0),
@@ -737,6 +770,7 @@ impl Residual {
         grad_dv: &[[f64; 3]],
     ) -> Result<ResidualGrads, ResidualError> {
         inputs.validate()?;
+        self.check_grid(inputs)?;
         if grad_dv.len() != inputs.particle_count() {
             return Err(ResidualError::Input {
                 field: "grad_dv".into(),
@@ -787,7 +821,11 @@ impl Residual {
                 ),
             });
         }
-        if values.iter().any(|v| !v.is_finite()) {
+        let finite = match &self.weights {
+            Weights::F32(_) => values.iter().all(|v| (*v as f32).is_finite()),
+            Weights::F64(_) => values.iter().all(|v| v.is_finite()),
+        };
+        if !finite {
             return Err(ResidualError::Input {
                 field: "parameters".into(),
                 problem: "not finite".into(),
@@ -817,7 +855,7 @@ impl Residual {
                 w.iter().flat_map(|v| v.to_le_bytes()).collect(),
             ),
         };
-        let element = bytes.len() / self.layout.total.max(1);
+        let element = dtype.bitsize() / 8;
         let mut views = Vec::with_capacity(self.layout.tensors.len());
         for (name, (shape, _)) in &self.layout.tensors {
             let range = self.layout.range(name);
@@ -832,8 +870,14 @@ impl Residual {
         let mut tmp = path.as_os_str().to_owned();
         tmp.push(".tmp");
         let tmp = std::path::PathBuf::from(tmp);
-        safetensors::serialize_to_file(views, None, &tmp).map_err(|e| file_err(&e))?;
-        std::fs::rename(&tmp, path).map_err(|e| file_err(&e))
+        let written = safetensors::serialize_to_file(views, None, &tmp)
+            .map_err(|e| file_err(&e))
+            .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| file_err(&e)));
+        if written.is_err() {
+            // Nothing half-written stays behind.
+            let _ = std::fs::remove_file(&tmp);
+        }
+        written
     }
 
     /// Loads weights saved by [`Residual::save`] (f32 or f64) for `spec`,
@@ -864,6 +908,14 @@ impl Residual {
             }
             let data = tensor.data();
             let target = &mut values[residual.layout.range(name)];
+            let element = tensor.dtype().bitsize() / 8;
+            if data.len() != target.len() * element {
+                return Err(file_err(format!(
+                    "tensor `{name}` holds {} bytes, expected {}",
+                    data.len(),
+                    target.len() * element
+                )));
+            }
             match tensor.dtype() {
                 safetensors::Dtype::F32 => {
                     for (t, b) in target.iter_mut().zip(data.chunks_exact(4)) {

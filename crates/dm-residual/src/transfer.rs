@@ -94,6 +94,18 @@ fn spline<T: Scalar>(f: T) -> ([T; 3], [T; 3]) {
     )
 }
 
+/// Particle p's grid coordinate on `axis` relative to its base cell.
+fn fraction<T: Scalar>(
+    x: &Rows<T>,
+    stencil: &Stencil,
+    origin: [f64; 3],
+    dx: f64,
+    p: usize,
+    axis: usize,
+) -> T {
+    (x.row(p)[axis] - T::lit(origin[axis])) / T::lit(dx) - T::lit(stencil.base[p][axis])
+}
+
 /// The stencil weights `w` (particles × 27), differentiable in x.
 pub fn spline_weights<T: Scalar>(
     x: &Rows<T>,
@@ -106,10 +118,7 @@ pub fn spline_weights<T: Scalar>(
         .par_chunks_mut(STENCIL)
         .enumerate()
         .for_each(|(p, out)| {
-            let axes = [0, 1, 2].map(|a| {
-                let f = (x.row(p)[a] - T::lit(origin[a])) / T::lit(dx) - T::lit(stencil.base[p][a]);
-                spline(f).0
-            });
+            let axes = [0, 1, 2].map(|a| spline(fraction(x, stencil, origin, dx, p, a)).0);
             let mut s = 0;
             for i in 0..3 {
                 for j in 0..3 {
@@ -133,10 +142,7 @@ pub fn spline_weights_backward<T: Scalar>(
 ) -> Rows<T> {
     let mut out = Rows::zeros(x.rows(), 3);
     out.data.par_chunks_mut(3).enumerate().for_each(|(p, dxp)| {
-        let axes = [0, 1, 2].map(|a| {
-            let f = (x.row(p)[a] - T::lit(origin[a])) / T::lit(dx) - T::lit(stencil.base[p][a]);
-            spline(f)
-        });
+        let axes = [0, 1, 2].map(|a| spline(fraction(x, stencil, origin, dx, p, a)));
         let g = grad.row(p);
         let inverse_dx = T::lit(1.0 / dx);
         let mut s = 0;

@@ -97,9 +97,9 @@ fn shifted(points: &[[f64; 3]], direction: &[[f64; 3]], h: f64) -> Vec<[f64; 3]>
         .collect()
 }
 
-fn vjp_matches_finite_differences(kind: ResidualKind) {
+fn vjp_matches_finite_differences(kind: ResidualKind, particles: usize) {
     let mut net = randomised(kind, Precision::F64, 0.5);
-    let inputs = cloud(40, 5);
+    let inputs = cloud(particles, 5);
     let n = inputs.particle_count();
     let mut r = stream(23);
     let mut directions = || -> Vec<[f64; 3]> { (0..n).map(|_| [r(), r(), r()]).collect() };
@@ -152,12 +152,48 @@ fn vjp_matches_finite_differences(kind: ResidualKind) {
 
 #[test]
 fn issue4_pgnd_vjp_matches_finite_differences() {
-    vjp_matches_finite_differences(ResidualKind::Pgnd);
+    vjp_matches_finite_differences(ResidualKind::Pgnd, 40);
 }
 
 #[test]
 fn issue4_mlp_vjp_matches_finite_differences() {
-    vjp_matches_finite_differences(ResidualKind::Mlp);
+    vjp_matches_finite_differences(ResidualKind::Mlp, 40);
+}
+
+/// Enough particles that the layers split their rows into several
+/// parallel ranges and partial sums (128 and 512 rows each).
+#[test]
+fn vjp_matches_finite_differences_across_row_ranges() {
+    vjp_matches_finite_differences(ResidualKind::Pgnd, 1100);
+    vjp_matches_finite_differences(ResidualKind::Mlp, 1100);
+}
+
+#[test]
+fn vjp_is_independent_of_thread_count() {
+    let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.3);
+    let inputs = cloud(2000, 8);
+    let grad_dv = vec![[0.3, -0.2, 0.1]; inputs.particle_count()];
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| net.vjp(&inputs, &grad_dv).expect("vjp"))
+    };
+    assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn zero_widths_and_far_particles_are_refused() {
+    let mut zero = spec(ResidualKind::Pgnd);
+    zero.size.decoder = 0;
+    let err = Residual::new(zero, Precision::F32).expect_err("zero width");
+    assert!(err.to_string().contains("size"), "{err}");
+    let net = Residual::new(spec(ResidualKind::Pgnd), Precision::F32).expect("network");
+    let mut inputs = cloud(10, 3);
+    inputs.x_tilde[7] = [1e12, 0.0, 0.0];
+    let err = net.predict(&inputs).expect_err("far particle");
+    assert!(err.to_string().contains("particle 7"), "{err}");
 }
 
 #[test]

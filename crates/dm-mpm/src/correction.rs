@@ -1,14 +1,10 @@
 //! The per-frame velocity correction hook of the neural residual
 //! (method.md §5): after a frame's substeps, v ← ṽ + Δv and
-//! x ← clip(x̃ + Δv·Δt_frame); F and C are unchanged.
-//!
-//! Backward (given the adjoints x̄, v̄ of the corrected state): where an axis
-//! was not clipped, Δv̄ = v̄ + Δt_frame·x̄ and x̃̄ = x̄; where it was clipped
-//! the corrected position is constant in both; ṽ̄ = v̄ always.
+//! x ← clip(x̃ + Δv·Δt_frame); F and C are unchanged. Its backward twin is
+//! `correction_backward.rs`.
 
 use crate::SimError;
-use crate::g2p_backward::ParticleGrads;
-use crate::real::{Real, Vec3};
+use crate::real::Real;
 use crate::world::World;
 
 /// What the backward pass of one correction needs (caller's order).
@@ -62,31 +58,5 @@ impl<T: Real> World<T> {
             }
         }
         Ok(CorrectionTape { clipped, frame_dt })
-    }
-}
-
-impl CorrectionTape {
-    /// Adjoint of the correction: turns `grads` (of the corrected state,
-    /// caller's order) into those of the state before it, in place, and
-    /// returns the adjoint of Δv.
-    pub fn backward<T: Real>(&self, grads: &mut ParticleGrads<T>) -> Vec<Vec3<T>> {
-        let dt = T::lit(self.frame_dt);
-        grads
-            .x
-            .iter_mut()
-            .zip(&grads.v)
-            .zip(&self.clipped)
-            .map(|((gx, gv), clipped)| {
-                let mut gdv = *gv;
-                for a in 0..3 {
-                    if clipped[a] {
-                        gx[a] = T::lit(0.0);
-                    } else {
-                        gdv[a] += dt * gx[a];
-                    }
-                }
-                gdv
-            })
-            .collect()
     }
 }

@@ -10,6 +10,7 @@ pub mod actuators;
 pub mod actuators_backward;
 pub mod config;
 pub mod correction;
+pub mod correction_backward;
 pub mod domain;
 pub mod experts;
 pub mod experts_backward;

@@ -509,7 +509,7 @@ impl<'a, T: Scalar> Net<'a, T> {
             BodyTape::Mlp { hidden, raw } => {
                 let [h1, h2, h3] = hidden;
                 let d_raw = self.bound().backward(raw, grad);
-                let mut d3 = take(
+                let mut d3 = block_gradient(
                     self.dense_backward("mlp4", &[h3], &d_raw, &[true], &mut flat),
                     0,
                 );
@@ -521,15 +521,15 @@ impl<'a, T: Scalar> Net<'a, T> {
                     &[true, true],
                     &mut flat,
                 );
-                let mut d2 = take_mut(&mut mlp3_inputs, 0);
-                let d_channels_direct = take_mut(&mut mlp3_inputs, 1);
+                let mut d2 = take_block_gradient(&mut mlp3_inputs, 0);
+                let d_channels_direct = take_block_gradient(&mut mlp3_inputs, 1);
                 relu_backward(h2, &mut d2);
-                let mut d1 = take(
+                let mut d1 = block_gradient(
                     self.dense_backward("mlp2", &[h1], &d2, &[true], &mut flat),
                     0,
                 );
                 relu_backward(h1, &mut d1);
-                let mut d_channels = take(
+                let mut d_channels = block_gradient(
                     self.dense_backward("mlp1", &[&tape.channels], &d1, &[true], &mut flat),
                     0,
                 );
@@ -565,7 +565,7 @@ impl<'a, T: Scalar> Net<'a, T> {
             transfer::to_particles_backward(&g.node_velocity, &g.spline_weights, &g.stencil, grad);
         let d_raw = self.bound().backward(&g.raw, &d_node_velocity);
         let [d1, d2, d3] = &g.decoded;
-        let mut dd3 = take(self.dense_backward("dec4", &[d3], &d_raw, &[true], flat), 0);
+        let mut dd3 = block_gradient(self.dense_backward("dec4", &[d3], &d_raw, &[true], flat), 0);
         relu_backward(d3, &mut dd3);
         let mut dec3_inputs = self.dense_backward(
             "dec3",
@@ -574,12 +574,12 @@ impl<'a, T: Scalar> Net<'a, T> {
             &[true, true, false],
             flat,
         );
-        let mut dd2 = take_mut(&mut dec3_inputs, 0);
-        let mut d_node_feature = take_mut(&mut dec3_inputs, 1);
+        let mut dd2 = take_block_gradient(&mut dec3_inputs, 0);
+        let mut d_node_feature = take_block_gradient(&mut dec3_inputs, 1);
         relu_backward(d2, &mut dd2);
-        let mut dd1 = take(self.dense_backward("dec2", &[d1], &dd2, &[true], flat), 0);
+        let mut dd1 = block_gradient(self.dense_backward("dec2", &[d1], &dd2, &[true], flat), 0);
         relu_backward(d1, &mut dd1);
-        let from_dec1 = take(
+        let from_dec1 = block_gradient(
             self.dense_backward(
                 "dec1",
                 &[&g.node_feature, &g.encoding],
@@ -610,7 +610,7 @@ impl<'a, T: Scalar> Net<'a, T> {
 
         // enc3 with its pooled half folded into the bias.
         let [h1, h2] = &g.encoded;
-        let mut dh2 = take(
+        let mut dh2 = block_gradient(
             self.dense_backward("enc3", &[h2], &d_feature, &[true], flat),
             0,
         );
@@ -632,10 +632,10 @@ impl<'a, T: Scalar> Net<'a, T> {
         }
         relu_backward(h2, &mut dh2);
         let dz2 = self.norm_backward("enc2", &g.norms[1], &dh2, flat);
-        let mut dh1 = take(self.dense_backward("enc2", &[h1], &dz2, &[true], flat), 0);
+        let mut dh1 = block_gradient(self.dense_backward("enc2", &[h1], &dz2, &[true], flat), 0);
         relu_backward(h1, &mut dh1);
         let dz1 = self.norm_backward("enc1", &g.norms[0], &dh1, flat);
-        let d_channels = take(
+        let d_channels = block_gradient(
             self.dense_backward("enc1", &[channels], &dz1, &[true], flat),
             0,
         );
@@ -643,11 +643,13 @@ impl<'a, T: Scalar> Net<'a, T> {
     }
 }
 
-fn take<T: Scalar>(mut blocks: Vec<Option<Rows<T>>>, i: usize) -> Rows<T> {
-    take_mut(&mut blocks, i)
+/// [`take_block_gradient`] from a list not needed afterwards.
+fn block_gradient<T: Scalar>(mut blocks: Vec<Option<Rows<T>>>, i: usize) -> Rows<T> {
+    take_block_gradient(&mut blocks, i)
 }
 
-fn take_mut<T: Scalar>(blocks: &mut [Option<Rows<T>>], i: usize) -> Rows<T> {
+/// Block `i`'s gradient from `Dense::backward`'s list (one asked for).
+fn take_block_gradient<T: Scalar>(blocks: &mut [Option<Rows<T>>], i: usize) -> Rows<T> {
     blocks[i].take().expect("the gradient of a wanted block")
 }
 

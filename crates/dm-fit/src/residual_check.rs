@@ -16,7 +16,7 @@
 //! sees training frames only: the held-out frames stay unseen.
 
 use crate::material_fit::{FitError, fit_frames};
-use crate::run::{Checkpoint, FitOptions, FitOutcome, fit_stages, material_config};
+use crate::run::{Checkpoint, FitOptions, FitOutcome, Stage, fit_stages, material_config};
 use dm_bundle::Bundle;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
@@ -50,7 +50,7 @@ pub fn train_track(
     bundle: &Bundle,
     options: &FitOptions,
 ) -> Result<f64, FitError> {
-    let frames = fit_frames(bundle, &material_config(options, 0));
+    let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
     let rollout = model.rollout(bundle, frames, &mut |_| {})?;
     let errors = frame_errors(&rollout, model.surface_count, &bundle.tracks);
     let train = bundle.meta.split.train;

@@ -85,8 +85,8 @@ pub struct FitOptions {
     #[arg(long, default_value_t = DEFAULT_RGB_WEIGHT)]
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
-    /// The particle damping rate: learnt in the material stages (at most
-    /// the category's default, docs/fit.md) or kept at that default. Run
+    /// The particle damping rate: learnt in stages 2 and 3, at most the
+    /// category's default (docs/fit.md), or kept at that default. Run
     /// records written before the option existed read as `fixed`, as they ran.
     #[arg(long, value_enum, default_value_t = ParticleDamping::Fixed)]
     #[serde(default)]
@@ -167,7 +167,8 @@ pub enum ParticleDamping {
     /// The category's default (method.md §2).
     #[default]
     Fixed,
-    /// Stepped with the material, between 0.5 /s and the default.
+    /// Stepped with the material in stages 2 and 3, between 0.5 /s and
+    /// the default.
     Learnt,
 }
 
@@ -290,7 +291,14 @@ pub struct FitReport {
 
 pub const CHECKPOINT_FILE: &str = "checkpoint.json";
 
-pub(crate) fn material_config(options: &FitOptions, iterations: usize) -> MaterialFitConfig {
+/// The material step's settings for `stage`: the particle damping is
+/// learnt (`--damping learnt`) only once the material has had its first
+/// fit, in stages 2 and 3 (docs/fit.md).
+pub(crate) fn material_config(
+    options: &FitOptions,
+    iterations: usize,
+    stage: Stage,
+) -> MaterialFitConfig {
     MaterialFitConfig {
         iterations,
         learning_rate: options.lr,
@@ -300,7 +308,8 @@ pub(crate) fn material_config(options: &FitOptions, iterations: usize) -> Materi
         residual_learning_rate: options.residual_lr,
         freeze_material: false,
         learn_effects: !options.freeze_effects,
-        learn_damping: options.damping == ParticleDamping::Learnt,
+        learn_damping: options.damping == ParticleDamping::Learnt
+            && matches!(stage, Stage::Material2 | Stage::Rgb),
     }
 }
 
@@ -313,7 +322,7 @@ fn select_gains(
     bundle: &Bundle,
     options: &FitOptions,
 ) -> Result<Vec<GainTrial>, FitError> {
-    let frames = fit_frames(bundle, &material_config(options, 0));
+    let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
     let radius = options.search_grasp_radius;
     let [r_lo, r_hi] = GRASP_RADIUS_SEARCH_M.map(f64::log10);
     let mut start = vec![model.actuator.kp.log10(), model.actuator.kd.log10()];
@@ -460,7 +469,7 @@ pub(crate) fn fit_stages(
             options: options.clone(),
             stage: Stage::Material1,
             iteration: 0,
-            adam: material_config(options, 0).adam(&model)?,
+            adam: material_config(options, 0, Stage::Material1).adam(&model)?,
             model,
             history: Vec::new(),
             gain_search: Vec::new(),
@@ -493,7 +502,7 @@ pub(crate) fn fit_stages(
                 if state.iteration < total {
                     let config = MaterialFitConfig {
                         freeze_material: state.stage == Stage::Residual,
-                        ..material_config(options, total)
+                        ..material_config(options, total, state.stage)
                     };
                     let index = state.history.len();
                     let keeping = state.stage == Stage::Residual
@@ -550,7 +559,7 @@ pub(crate) fn fit_stages(
                     if residual_stage_runs && previous != Stage::Material1 {
                         let config = MaterialFitConfig {
                             freeze_material: state.stage == Stage::Residual,
-                            ..material_config(options, 0)
+                            ..material_config(options, 0, state.stage)
                         };
                         state.adam = config.adam(&state.model)?;
                     }
@@ -605,7 +614,7 @@ pub(crate) fn fit_stages(
                         let (gaussians, record) = load_appearance(out, &state.model)?;
                         (gaussians, record.train_cameras)
                     };
-                    let config = material_config(options, options.rgb_iters);
+                    let config = material_config(options, options.rgb_iters, Stage::Rgb);
                     let steps = fit_frames(bundle, &config).saturating_sub(1);
                     let mut term = RgbTerm::new(
                         bundle,
@@ -645,7 +654,7 @@ pub(crate) fn fit_stages(
                     progress("selecting actuator gains (CMA-ES)");
                     state.gain_search = select_gains(&mut state.model, bundle, options)?;
                 }
-                state.adam = material_config(options, 0).adam(&state.model)?;
+                state.adam = material_config(options, 0, Stage::Material2).adam(&state.model)?;
                 state.stage = Stage::Material2;
             }
             Stage::Done => break,
@@ -653,7 +662,7 @@ pub(crate) fn fit_stages(
         state.seconds += clock.elapsed().as_secs_f64();
         write_json_atomic(&checkpoint_path, &state)?;
     }
-    let frames = fit_frames(bundle, &material_config(options, 0));
+    let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
     let final_loss = train_loss(&state.model, bundle, frames)?;
     let (youngs, poisson) = state.model.material_medians();
     progress("probing how sharply the clip pins E and ν");
@@ -766,7 +775,7 @@ fn restore_kept_residual(
     if options.residual_keep != ResidualKeep::LateFrames {
         return Ok(None);
     }
-    let frames = fit_frames(bundle, &material_config(options, 0));
+    let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
     let last = late_frames_loss(&train_frame_losses(&state.model, bundle, frames)?);
     let step = state.iteration;
     keep_if_better(

@@ -26,11 +26,17 @@ fn fit(scene: &Path, out: &Path, extra: &[&str]) -> Output {
 
 /// `dm-fit SCENE --out OUT ARGS..`, which must succeed.
 fn fit_with(scene: &Path, out: &Path, args: &[&str]) -> Output {
+    fit_with_env(scene, out, args, &[])
+}
+
+/// [`fit_with`] with extra environment variables.
+fn fit_with_env(scene: &Path, out: &Path, args: &[&str], env: &[(&str, &str)]) -> Output {
     let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
         .arg(scene)
         .arg("--out")
         .arg(out)
         .args(args)
+        .envs(env.iter().copied())
         .output()
         .expect("dm-fit runs");
     assert!(
@@ -272,26 +278,19 @@ fn fit_writes_the_same_files_on_one_and_two_threads() {
     let scene = tiny_scene(dir.path(), Preset::Toy, 6);
     let run = |threads: &str| {
         let out = dir.path().join(format!("threads{threads}"));
-        let output = Command::new(env!("CARGO_BIN_EXE_dm-fit"))
-            .arg(&scene)
-            .arg("--out")
-            .arg(&out)
-            .args(FAST_PHYSICS)
-            .args([
-                "--residual",
-                "pgnd",
-                "--residual-iters",
-                "2",
-                "--rgb-iters",
-                "1",
-            ])
-            .env("RAYON_NUM_THREADS", threads)
-            .output()
-            .expect("dm-fit runs");
-        assert!(
-            output.status.success(),
-            "{}",
-            String::from_utf8_lossy(&output.stderr)
+        let stages = [
+            "--residual",
+            "pgnd",
+            "--residual-iters",
+            "2",
+            "--rgb-iters",
+            "1",
+        ];
+        fit_with_env(
+            &scene,
+            &out,
+            &[FAST_PHYSICS, &stages].concat(),
+            &[("RAYON_NUM_THREADS", threads)],
         );
         out
     };

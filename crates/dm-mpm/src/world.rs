@@ -244,22 +244,23 @@ impl<T: Real> World<T> {
     /// Sets the extra physics (drag, friction, plasticity, viscosity) in
     /// force from the next substep.
     pub fn set_effects(&mut self, effects: crate::Effects) -> Result<(), SimError> {
-        let mut config = self.config.clone();
-        config.effects = effects;
-        self.replace_config(config)
+        self.change_config(|config| config.effects = effects)
     }
 
     /// Sets gravity (m/s², world frame) from the next substep.
     pub fn set_gravity(&mut self, gravity: [f64; 3]) -> Result<(), SimError> {
-        let mut config = self.config.clone();
-        config.gravity = gravity;
-        self.replace_config(config)
+        self.change_config(|config| config.gravity = gravity)
     }
 
     /// Sets the particle damping rate (1/s) from the next substep.
     pub fn set_particle_damping(&mut self, rate: f64) -> Result<(), SimError> {
+        self.change_config(|config| config.particle_damping = rate)
+    }
+
+    /// `change` applied to a copy of the config, which then replaces it.
+    fn change_config(&mut self, change: impl FnOnce(&mut PhysicsConfig)) -> Result<(), SimError> {
         let mut config = self.config.clone();
-        config.particle_damping = rate;
+        change(&mut config);
         self.replace_config(config)
     }
 

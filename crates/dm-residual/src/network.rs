@@ -11,8 +11,7 @@
 use crate::ResidualError;
 use crate::features::{CHANNELS, FrameInputs, HISTORY};
 use crate::kernels::{
-    Bound, Dense, GroupNorm, NormTape, Rows, Scalar, add_into, column_max, column_sums, relu,
-    relu_backward,
+    Bound, Dense, GroupNorm, NormTape, Rows, Scalar, add_into, column_max, relu, relu_backward,
 };
 use crate::transfer::{self, Stencil};
 use serde::{Deserialize, Serialize};
@@ -469,15 +468,14 @@ impl<'a, T: Scalar> Net<'a, T> {
         let mut weight_grad = vec![T::zero(); layer.weight.len()];
         let mut bias_grad = vec![T::zero(); layer.bias.len()];
         let out = layer.backward(blocks, grad, wanted, &mut weight_grad, &mut bias_grad);
-        add_into(
-            &mut flat[self.layout.range(&format!("{name}.weight"))],
-            &weight_grad,
-        );
-        add_into(
-            &mut flat[self.layout.range(&format!("{name}.bias"))],
-            &bias_grad,
-        );
+        self.add_gradient(flat, &format!("{name}.weight"), &weight_grad);
+        self.add_gradient(flat, &format!("{name}.bias"), &bias_grad);
         out
+    }
+
+    /// Adds `values` to tensor `name`'s slice of the flat gradient.
+    fn add_gradient(&self, flat: &mut [T], name: &str, values: &[T]) {
+        add_into(&mut flat[self.layout.range(name)], values);
     }
 
     fn norm_backward(
@@ -491,14 +489,8 @@ impl<'a, T: Scalar> Net<'a, T> {
         let mut scale = vec![T::zero(); norm.scale.len()];
         let mut shift = vec![T::zero(); norm.shift.len()];
         let out = norm.backward(tape, grad, &mut scale, &mut shift);
-        add_into(
-            &mut flat[self.layout.range(&format!("{name}.norm.weight"))],
-            &scale,
-        );
-        add_into(
-            &mut flat[self.layout.range(&format!("{name}.norm.bias"))],
-            &shift,
-        );
+        self.add_gradient(flat, &format!("{name}.norm.weight"), &scale);
+        self.add_gradient(flat, &format!("{name}.norm.bias"), &shift);
         out
     }
 
@@ -615,7 +607,9 @@ impl<'a, T: Scalar> Net<'a, T> {
             0,
         );
         let enc3 = self.dense("enc3");
-        let bias_grad = column_sums(&d_feature);
+        // enc3's bias gradient, which `dense_backward` just wrote (the bias
+        // gets no other contribution), is the pooled half's too.
+        let bias_grad = flat[self.layout.range("enc3.bias")].to_vec();
         let weight_range = self.layout.range("enc3.weight");
         for o in 0..enc3.outputs {
             for c in 0..e2 {

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene test bench bench-fit bench-peers clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -147,9 +147,31 @@ $(LPIPS_CACHE)/downloads/.done: $(VENV)/.installed
 $(LPIPS_MODEL): $(LPIPS_CACHE)/downloads/.done scripts/build_lpips.py scripts/lpips_weights.py
 	$(LPIPS_BUILD)
 
+# The Python package (docs/python.md): an abi3 wheel built by maturin from
+# crates/dm-python into target/wheels, installed into its own venv with
+# numpy, gymnasium, matplotlib and pytest.
+PY_VENV ?= .venv-python
+PY_PYTHON ?= python3
+PY_WHEELS ?= target/wheels
+
+$(PY_VENV)/.installed: crates/dm-python/requirements.txt
+	@command -v $(PY_PYTHON) >/dev/null || { echo "error: $(PY_PYTHON) not found (needed for the Python package)" >&2; exit 1; }
+	$(PY_PYTHON) -m venv $(PY_VENV)
+	$(PY_VENV)/bin/pip install --quiet --disable-pip-version-check -r crates/dm-python/requirements.txt
+	@touch $@
+
+python: $(PY_VENV)/.installed
+	@rm -f $(PY_WHEELS)/deformmaster-*.whl
+	$(PY_VENV)/bin/maturin build --quiet --release --manifest-path crates/dm-python/Cargo.toml --out $(PY_WHEELS)
+	$(PY_VENV)/bin/pip install --quiet --disable-pip-version-check --force-reinstall --no-deps $(PY_WHEELS)/deformmaster-*.whl
+	@echo "deformmaster installed in $(PY_VENV): $(PY_VENV)/bin/python examples/python/rollout.py MODEL_DIR BUNDLE"
+
+# pytest runs the package against the tools `cargo test` has just built (target/debug).
 test: setup
 	bash scripts/check_words.sh
 	$(CARGO) test --workspace
+	$(MAKE) python
+	DM_BIN_DIR=$(CURDIR)/target/debug $(PY_VENV)/bin/python -m pytest -q crates/dm-python/tests
 
 bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts nh
@@ -166,6 +188,11 @@ bench-fit: build
 	  ./target/release/dm-fit $(OUT)/scene --out $(OUT)/bench-fit $(DEMO_FIT) > $(OUT)/bench-fit.log 2>&1 || { cat $(OUT)/bench-fit.log; exit 1; }; \
 	  python3 -c 'import json; r=json.load(open("$(OUT)/bench-fit/fit_report.json")); print("fit_s %.1f  (E %.3g Pa, final loss %.3g)" % (r["seconds"], r["material"]["E_median_pa"], r["loss"]["final"]))'; \
 	done
+
+# Stepping from Python against dm-sim on the demo's model (docs/BENCHMARKS.md).
+bench-python: build python
+	@[ -f $(OUT)/model/model.json ] || { echo "error: no demo model in $(OUT)/model (make demo first)" >&2; exit 1; }
+	$(PY_VENV)/bin/python benches/python/step_overhead.py $(OUT)/model $(OUT)/scene --dm-sim target/release/dm-sim --repeats 7
 
 # Peer benchmarks (benches/peers/README.md): the reference block of
 # `dm-bench mpm` in NVIDIA Warp and Taichi on the CPU, beside dm-bench
@@ -194,4 +221,4 @@ bench-peers: $(PEERS_VENV)/.installed
 	done
 
 clean:
-	rm -rf out target $(LPIPS_CACHE) $(VENV)
+	rm -rf out target $(LPIPS_CACHE) $(VENV) $(PY_VENV)

@@ -460,7 +460,13 @@ fn check_rigid_transform(m: &[[f64; 4]; 4]) -> Result<(), String> {
 /// Reads a JSON file into `T`; errors name the offending key path (e.g. `cameras[1].fx`).
 pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T> {
     let text = fs::read_to_string(path).map_err(|e| BundleError::io(path, "reading", &e))?;
-    let mut deserializer = serde_json::Deserializer::from_str(&text);
+    parse_json(&text, path)
+}
+
+/// Parses JSON `text` meant for the file at `path`; errors name that file
+/// and the offending key as [`read_json`]'s do.
+pub fn parse_json<T: DeserializeOwned>(text: &str, path: &Path) -> Result<T> {
+    let mut deserializer = serde_json::Deserializer::from_str(text);
     let value: T =
         serde_path_to_error::deserialize(&mut deserializer).map_err(|e| json_error(path, e))?;
     deserializer

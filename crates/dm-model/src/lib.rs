@@ -312,12 +312,18 @@ impl WorldModel {
         let mut m = self
             .patches
             .particle_material::<f32>(&self.params, &self.bounds);
+        self.apply_expert_choice(&mut m);
+        m
+    }
+
+    /// The `--experts nh` ablation: every particle purely Neo-Hookean.
+    fn apply_expert_choice(&self, material: &mut ParticleMaterial<f32>) {
         if self.options.experts == ExpertChoice::Nh {
-            m.expert_weights
+            material
+                .expert_weights
                 .iter_mut()
                 .for_each(|w| *w = [1.0, 0.0, 0.0]);
         }
-        m
     }
 
     /// Median Young's modulus (Pa) and Poisson ratio over particles.
@@ -393,22 +399,117 @@ impl WorldModel {
         on_frame: &mut dyn FnMut(usize),
     ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         let frames = frames.min(bundle.frame_count());
-        let mut world = self.world()?;
-        let network = self.residual_network()?;
-        let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
-        let mut out = vec![as_f32(world.positions())];
-        let mut starts = Vec::new();
+        let mut simulation = self.simulation()?;
+        let mut out = vec![simulation.positions_f32()];
         for t in 0..frames.saturating_sub(1) {
-            starts.push(residual::frame_start(&world));
             let (from, to, grasp) = self.hand_step(bundle, t);
-            world.step_frame(&from, &to, &grasp)?;
-            if let Some(network) = &network {
-                residual::apply_residual(&mut world, network, &starts, t)?;
-            }
-            out.push(as_f32(world.positions()));
+            simulation.step(&from, &to, &grasp)?;
+            out.push(simulation.positions_f32());
             on_frame(t + 1);
         }
         Ok(out)
+    }
+
+    /// A simulation of this model at its first frame: its world and, when
+    /// it has one, its residual network.
+    pub fn simulation(&self) -> Result<Simulation, ModelError> {
+        Ok(Simulation {
+            world: self.world()?,
+            network: self.residual_network()?,
+            starts: Vec::new(),
+        })
+    }
+
+    /// Per-particle material with every fitted Young's modulus multiplied
+    /// by `e_scale` and, when given, one Poisson ratio `nu` for all (the
+    /// extension's stiff ball included).
+    pub fn scaled_material(&self, e_scale: f64, nu: Option<f64>) -> ParticleMaterial<f32> {
+        let (e, fitted_nu, weights) = self.patches.particle_fields(&self.params, &self.bounds);
+        let e: Vec<f64> = e.iter().map(|e| e * e_scale).collect();
+        let nu = nu.map_or(fitted_nu, |nu| vec![nu; e.len()]);
+        let mut material = ParticleMaterial::from_fields(&e, &nu, &weights);
+        self.apply_expert_choice(&mut material);
+        self.extension
+            .apply_to_material(&self.particles, &mut material);
+        material
+    }
+}
+
+/// A world model being stepped frame by frame: the MPM world, the residual
+/// network, and the frame starts the network reads. [`WorldModel::rollout`]
+/// is a loop over [`Simulation::step`], so stepping by hand gives bitwise
+/// the same frames.
+#[derive(Debug)]
+pub struct Simulation {
+    world: World<f32>,
+    network: Option<dm_residual::Residual>,
+    starts: Vec<residual::FrameStart>,
+}
+
+impl Simulation {
+    /// The MPM world (particle state, configuration).
+    pub fn world(&self) -> &World<f32> {
+        &self.world
+    }
+
+    /// Frames stepped since the first frame.
+    pub fn frame(&self) -> usize {
+        self.starts.len()
+    }
+
+    /// Particle positions in the model's order.
+    pub fn positions_f32(&self) -> Vec<[f32; 3]> {
+        self.world
+            .positions()
+            .iter()
+            .map(|p| p.map(|c| c as f32))
+            .collect()
+    }
+
+    /// Advances one frame while the hand anchors move linearly from `from`
+    /// to `to`; anchors marked in `grasp` tie the particles within the
+    /// grasp radius at the frame's start. The residual, if any, corrects
+    /// the frame's velocities.
+    pub fn step(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        grasp: &[bool],
+    ) -> Result<(), ModelError> {
+        self.starts.push(residual::frame_start(&self.world));
+        let t = self.starts.len() - 1;
+        let stepped = self.world.step_frame(from, to, grasp);
+        if let Err(error) = stepped {
+            self.starts.pop();
+            return Err(error.into());
+        }
+        if let Some(network) = &self.network {
+            residual::apply_residual(&mut self.world, network, &self.starts, t)?;
+        }
+        Ok(())
+    }
+
+    /// Replaces the world by one built from `physics` and `material` (the
+    /// substep is chosen again for the new stiffness) that continues from
+    /// the current particle state. Grasps are not carried over: anchors
+    /// marked in the next step's `grasp` capture them again.
+    pub fn rebuild(
+        &mut self,
+        model: &WorldModel,
+        physics: PhysicsConfig,
+        material: ParticleMaterial<f32>,
+    ) -> Result<(), ModelError> {
+        let state = self.world.state();
+        let mut world = World::new(
+            physics,
+            &model.particles,
+            model.particle_volume,
+            material,
+            model.actuator,
+        )?;
+        world.set_state(&state)?;
+        self.world = world;
+        Ok(())
     }
 }
 

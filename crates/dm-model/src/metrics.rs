@@ -67,11 +67,7 @@ pub fn frame_errors(
         .first()
         .map(|frame| frame.iter().map(to_f64).collect())
         .unwrap_or_default();
-    let index = PointIndex::new(&first);
-    // `None` only when the rollout has no particles.
-    let matched: Vec<Option<usize>> = (0..n_tracks)
-        .map(|k| index.nearest(&observed(0, k), 1).first().map(|n| n.0))
-        .collect();
+    let matched = match_tracks(&first, tracks);
     let mut track = Vec::with_capacity(rollout.len());
     let mut chamfer = Vec::with_capacity(rollout.len());
     for (t, frame) in rollout.iter().take(tracks.frame_count()).enumerate() {
@@ -101,16 +97,38 @@ pub fn frame_errors(
             .iter()
             .map(to_f64)
             .collect();
-        let surface_index = PointIndex::new(&surface);
-        chamfer.push(
-            visible
-                .iter()
-                .map(|&k| l1_nearest_distance(&surface_index, &surface, observed(t, k)))
-                .sum::<f64>()
-                / visible.len() as f64,
-        );
+        let targets: Vec<[f64; 3]> = visible.iter().map(|&k| observed(t, k)).collect();
+        chamfer.push(chamfer_to(&surface, &targets));
     }
     FrameErrors { track, chamfer }
+}
+
+/// The particle each tracked point is matched to: its Euclidean nearest
+/// among the first-frame `particles` (`None` only when there are none).
+pub fn match_tracks(particles: &[[f64; 3]], tracks: &Tracks) -> Vec<Option<usize>> {
+    let index = PointIndex::new(particles);
+    let p = &tracks.object_points;
+    (0..p.shape()[1])
+        .map(|k| {
+            let q = [p[[0, k, 0]], p[[0, k, 1]], p[[0, k, 2]]].map(f64::from);
+            index.nearest(&q, 1).first().map(|n| n.0)
+        })
+        .collect()
+}
+
+/// One-directional L1 Chamfer distance: the mean over `targets` of the L1
+/// distance to the L1-nearest point of `surface` (the metric's Chamfer
+/// term; NaN when either cloud is empty).
+pub fn chamfer_to(surface: &[[f64; 3]], targets: &[[f64; 3]]) -> f64 {
+    if targets.is_empty() {
+        return f64::NAN;
+    }
+    let index = PointIndex::new(surface);
+    targets
+        .iter()
+        .map(|&q| l1_nearest_distance(&index, surface, q))
+        .sum::<f64>()
+        / targets.len() as f64
 }
 
 /// Mean of the finite values in `values[range[0]..range[1]]` (NaN if none).

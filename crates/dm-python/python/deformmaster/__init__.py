@@ -1,0 +1,107 @@
+"""DeformMaster from Python: scene bundles as NumPy arrays, fitted world
+models stepped frame by frame, renders and per-frame metrics.
+
+    import deformmaster as dm
+    bundle = dm.read_bundle("out/demo/scene")
+    model = dm.load_model("out/demo/model")
+    sim = model.simulation(bundle.hand_anchors(0))
+    for t in range(1, bundle.frame_count):
+        sim.step(bundle.hand_anchors(t))
+    print(sim.positions.shape)
+
+The physics runs in Rust (the same code as the command-line tools) with
+the GIL released. Errors are ``DeformMasterError`` subclasses whose
+message names the file and field at fault. The Gymnasium environment is
+``deformmaster.env.TwinEnv``. API reference: docs/python.md.
+"""
+
+import json as _json
+
+import numpy as _np
+
+from ._native import (
+    Bundle,
+    BundleError,
+    DeformMasterError,
+    Model,
+    ModelError,
+    Simulation,
+    SimulationError,
+    __version__,
+    load_model,
+    look_at,
+    read_bundle,
+    split_frames,
+)
+from ._native import write_bundle_arrays as _write_bundle_arrays
+
+__all__ = [
+    "Bundle",
+    "BundleError",
+    "DeformMasterError",
+    "Model",
+    "ModelError",
+    "Simulation",
+    "SimulationError",
+    "__version__",
+    "load_model",
+    "look_at",
+    "read_bundle",
+    "split_frames",
+    "write_bundle",
+]
+
+_TRACK_TYPES = {
+    "object_points": _np.float32,
+    "object_visibility": _np.bool_,
+    "object_motion_valid": _np.bool_,
+    "hand_points": _np.float32,
+    "hand_visibility": _np.bool_,
+}
+_PARTICLE_TYPES = {
+    "surface_points": _np.float32,
+    "surface_colors": _np.float32,
+    "interior_points": _np.float32,
+    "interior_colors": _np.float32,
+}
+_IMAGE_TYPES = {
+    "rgb": _np.uint8,
+    "depth": _np.float32,
+    "mask_object": _np.bool_,
+    "mask_hand": _np.bool_,
+}
+
+
+def _typed(arrays, types, where):
+    missing = [k for k in types if k not in arrays]
+    if missing:
+        raise BundleError(f"{where}: missing {', '.join(missing)}")
+    return {
+        k: _np.ascontiguousarray(_np.asarray(arrays[k]).astype(t, copy=False))
+        for k, t in types.items()
+    }
+
+
+def write_bundle(path, meta, tracks, particles, images, overwrite=False):
+    """Writes a scene bundle (docs/bundle.md) and returns it read back.
+
+    ``meta`` is bundle.json as a dict; ``tracks`` and ``particles`` are
+    dicts of arrays keyed as ``Bundle.tracks`` and ``Bundle.particles``;
+    ``images`` has one dict per camera keyed as ``Bundle.images(camera)``
+    (rgb, depth in metres with NaN for none, mask_object, mask_hand). The
+    bundle is written under a temporary name, validated, then renamed; an
+    existing ``path`` is replaced only with ``overwrite=True``.
+    """
+    tracks = _typed(tracks, _TRACK_TYPES, "tracks")
+    particles = _typed(particles, _PARTICLE_TYPES, "particles")
+    images = [
+        _typed(camera, _IMAGE_TYPES, f"images[{i}]") for i, camera in enumerate(images)
+    ]
+    return _write_bundle_arrays(
+        str(path),
+        _json.dumps(meta),
+        images=images,
+        overwrite=overwrite,
+        **tracks,
+        **particles,
+    )

@@ -1,0 +1,265 @@
+"""The deformmaster package against the Rust tools: bundles round-trip
+through the Rust reader, stepping from Python equals dm-sim's rollout
+bitwise, renders, material control, errors, the GIL, the Gymnasium env
+and the example script."""
+
+import json
+import shutil
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import deformmaster as dm
+from conftest import REPO, run_tool
+
+
+def hand_path(bundle):
+    return np.stack([bundle.hand_anchors(t) for t in range(1, bundle.frame_count)])
+
+
+def test_bundle_round_trips_through_the_rust_reader(tiny, tmp_path):
+    bundle = dm.read_bundle(tiny["scene"])
+    images = [bundle.images(c) for c in range(bundle.camera_count)]
+    copy = dm.write_bundle(tmp_path / "copy", bundle.meta, bundle.tracks, bundle.particles, images)
+    again = dm.read_bundle(tmp_path / "copy")
+    assert again.meta == bundle.meta == copy.meta
+    for group in ("tracks", "particles"):
+        ours, theirs = getattr(bundle, group), getattr(again, group)
+        assert ours.keys() == theirs.keys()
+        for key in ours:
+            assert ours[key].dtype == theirs[key].dtype, key
+            assert np.array_equal(ours[key], theirs[key]), key
+    for c in range(bundle.camera_count):
+        written = again.images(c)
+        for key, array in images[c].items():
+            assert np.array_equal(array, written[key], equal_nan=key == "depth"), (c, key)
+    # The npy files are the same bytes as the ones dm-synth wrote.
+    for name in ("tracks/object_points.npy", "particles/surface_points.npy"):
+        assert (tiny["scene"] / name).read_bytes() == (tmp_path / "copy" / name).read_bytes()
+    # dm-sim (Rust) reads the Python-written bundle.
+    run_tool("dm-sim", tmp_path / "copy", "--residual", "none", "--frames", "3", "--out", tmp_path / "s")
+
+
+def test_write_bundle_refuses_bad_input_and_keeps_what_exists(tiny, tmp_path):
+    bundle = dm.read_bundle(tiny["scene"])
+    images = [bundle.images(c) for c in range(bundle.camera_count)]
+    meta = bundle.meta
+    bad = json.loads(json.dumps(meta))
+    bad["cameras"][1]["fx"] = "wide"
+    with pytest.raises(dm.BundleError, match=r"bundle\.json.*cameras\[1\]\.fx"):
+        dm.write_bundle(tmp_path / "bad", bad, bundle.tracks, bundle.particles, images)
+    short = [dict(images[0], rgb=images[0]["rgb"][:, :-1])] + images[1:]
+    with pytest.raises(dm.BundleError, match=r"images\[0\]\[\"rgb\"\]"):
+        dm.write_bundle(tmp_path / "short", meta, bundle.tracks, bundle.particles, short)
+    tracks = dict(bundle.tracks)
+    del tracks["hand_points"]
+    with pytest.raises(dm.BundleError, match="hand_points"):
+        dm.write_bundle(tmp_path / "missing", meta, tracks, bundle.particles, images)
+    assert not any(tmp_path.iterdir()), "a refused write left files behind"
+    # An existing bundle is replaced only when asked.
+    target = tmp_path / "existing"
+    shutil.copytree(tiny["scene"], target)
+    before = (target / "bundle.json").read_bytes()
+    with pytest.raises(dm.BundleError):
+        dm.write_bundle(target, meta, bundle.tracks, bundle.particles, images)
+    assert (target / "bundle.json").read_bytes() == before
+    dm.write_bundle(target, meta, bundle.tracks, bundle.particles, images, overwrite=True)
+
+
+def test_stepping_from_python_equals_dm_sim_bitwise(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    reference = np.load(tiny["sim"] / "rollout.npy")
+    sim = model.simulation(bundle.hand_anchors(0))
+    assert np.array_equal(sim.positions, reference[0])
+    for t in range(1, bundle.frame_count):
+        sim.step(bundle.hand_anchors(t))
+        assert np.array_equal(sim.positions, reference[t]), f"frame {t}"
+    assert sim.frame == bundle.frame_count - 1
+    # Many frames in one call, and the in-process rollout, give the same.
+    many = model.simulation(bundle.hand_anchors(0)).step_many(hand_path(bundle))
+    assert np.array_equal(many, reference[1:])
+    assert np.array_equal(model.rollout(bundle), reference)
+    # The per-frame metrics are dm-sim's.
+    summary = json.loads((tiny["sim"] / "summary.json").read_text())
+    errors = model.frame_errors(bundle, reference)
+    assert np.allclose(errors["track_m"], summary["per_frame_track_error_m"], rtol=0, atol=0)
+
+
+def test_a_residual_network_steps_as_in_dm_sim(tiny, tmp_path):
+    run_tool("dm-sim", tiny["scene"], "--residual", "pgnd", "--frames", "5", "--out", tmp_path)
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.Model.from_bundle(bundle, residual="pgnd")
+    assert model.has_residual
+    frames = model.simulation(bundle.hand_anchors(0)).step_many(hand_path(bundle)[:4])
+    assert np.array_equal(frames, np.load(tmp_path / "rollout.npy")[1:])
+
+
+def test_state_and_tracked_points(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    sim = model.simulation(bundle.hand_anchors(0))
+    sim.step(bundle.hand_anchors(1))
+    n = model.particle_count
+    assert sim.positions.shape == (n, 3) and sim.positions.dtype == np.float32
+    assert sim.velocities.shape == (n, 3) and np.isfinite(sim.velocities).all()
+    f = sim.deformation_gradients
+    assert f.shape == (n, 3, 3)
+    assert np.allclose(np.linalg.det(f), 1.0, atol=0.2)
+    ids = model.track_particles(bundle)
+    assert ids.shape == (bundle.tracks["object_points"].shape[1],) and (ids >= 0).all()
+    assert np.array_equal(sim.points(ids), sim.positions[ids])
+    assert np.array_equal(sim.hands, bundle.hand_anchors(1))
+    with pytest.raises(ValueError, match="outside"):
+        sim.points(np.array([n]))
+    # The Chamfer term of the metrics at the first frame.
+    first = model.simulation(bundle.hand_anchors(0))
+    visible = bundle.tracks["object_visibility"][0]
+    observed = bundle.tracks["object_points"][0][visible]
+    errors = model.frame_errors(bundle, model.rollout(bundle, frames=2))
+    assert first.chamfer_to(observed) == pytest.approx(errors["chamfer_m"][0], rel=1e-12)
+
+
+def test_renders_with_the_splats_and_with_particles(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    assert model.has_splats
+    camera = bundle.camera(0)
+    for follow in (True, False):
+        sim = model.simulation(bundle.hand_anchors(0), follow_splats=follow)
+        for t in range(1, 4):
+            sim.step(bundle.hand_anchors(t))
+        view = sim.render(camera)
+        h, w = camera["height"], camera["width"]
+        assert view["rgb"].shape == (h, w, 3) and view["rgb"].dtype == np.uint8
+        assert view["depth"].shape == (h, w) and view["mask"].shape == (h, w)
+        mask = view["mask"]
+        assert 0.001 < mask.mean() < 0.9, f"object covers {mask.mean():.3f} of the image"
+        # Depth is defined on the object and lies near the particles' depth.
+        depth = view["depth"][mask]
+        assert np.isfinite(depth).all()
+        r = np.asarray(camera["world_to_camera"])
+        z = sim.positions.astype(np.float64) @ r[2, :3] + r[2, 3]
+        assert z.min() - 0.05 < np.median(depth) < z.max() + 0.05
+        # The observed object mask and the render mostly agree.
+        observed = bundle.mask(0, 3)
+        overlap = (observed & mask).sum() / max((observed | mask).sum(), 1)
+        assert overlap > 0.4, f"IoU with the observed mask {overlap:.2f}"
+    with pytest.raises(dm.ModelError, match="splats"):
+        dm.Model.from_bundle(bundle).simulation(bundle.hand_anchors(0), follow_splats=True)
+    camera = dm.look_at((0.6, 0.0, 0.3), (0.0, 0.0, 0.05), width=64, height=48)
+    assert sim.render(camera)["rgb"].shape == (48, 64, 3)
+
+
+def test_material_as_in_the_playground(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    sim = model.simulation(bundle.hand_anchors(0))
+    sim.step(bundle.hand_anchors(1))
+    before = sim.substeps_per_frame
+    sim.set_material(e_scale=8.0, nu=0.4, damping=2.0)
+    assert sim.material == {"e_scale": 8.0, "nu": 0.4, "damping": 2.0}
+    assert sim.substeps_per_frame > before, "a stiffer material needs a finer substep"
+    sim.step(bundle.hand_anchors(2))
+    assert np.isfinite(sim.positions).all()
+    for kwargs in ({"e_scale": 0.0}, {"nu": 0.5}, {"damping": -1.0}, {"e_scale": float("nan")}):
+        with pytest.raises(ValueError):
+            sim.set_material(**kwargs)
+
+
+def test_errors_name_file_and_field(tiny, tmp_path):
+    with pytest.raises(dm.BundleError, match="nowhere"):
+        dm.read_bundle(tmp_path / "nowhere")
+    broken = tmp_path / "model"
+    shutil.copytree(tiny["model"], broken)
+    record = json.loads((broken / "model.json").read_text())
+    record["physics"]["dt"] = "soon"
+    (broken / "model.json").write_text(json.dumps(record))
+    with pytest.raises(dm.DeformMasterError, match=r"model\.json.*physics\.dt"):
+        dm.load_model(broken)
+    bundle = dm.read_bundle(tiny["scene"])
+    sim = dm.load_model(tiny["model"]).simulation(bundle.hand_anchors(0))
+    with pytest.raises(ValueError, match="hands"):
+        sim.step(np.zeros((len(bundle.hand_anchors(0)) + 1, 3)))
+    bad = bundle.hand_anchors(1)
+    bad[0, 1] = np.nan
+    with pytest.raises(ValueError, match="not finite"):
+        sim.step(bad)
+    with pytest.raises(ValueError, match="camera 9"):
+        bundle.rgb(9, 0)
+    # A hand thrown across the scene in one frame: reported, not a crash.
+    far = bundle.hand_anchors(1) + 50.0
+    with pytest.raises(dm.SimulationError):
+        sim.step(far)
+
+
+def test_the_gil_is_released_while_stepping(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    sim = model.simulation(bundle.hand_anchors(0))
+    path = hand_path(bundle)
+    ticks = 0
+    worker = threading.Thread(target=sim.step_many, args=(path,))
+    start = time.perf_counter()
+    worker.start()
+    while worker.is_alive():
+        ticks += 1
+        time.sleep(0)
+    elapsed = time.perf_counter() - start
+    worker.join()
+    assert elapsed > 0.05, f"the rollout took only {elapsed:.3f} s; the test needs a longer one"
+    # With the GIL held for the whole call the loop would run once or twice.
+    assert ticks > 100, f"main thread ran {ticks} times in {elapsed:.2f} s"
+    assert sim.frame == len(path)
+    # A second thread stepping the same simulation is refused, not blocked.
+    busy = threading.Thread(target=sim.step_many, args=(path,))
+    busy.start()
+    time.sleep(0.01)
+    if busy.is_alive():
+        with pytest.raises(dm.SimulationError, match="another thread"):
+            sim.step(bundle.hand_anchors(0))
+    busy.join()
+
+
+def test_gymnasium_env_passes_check_env(tiny):
+    from gymnasium.utils.env_checker import check_env
+
+    from deformmaster.env import TwinEnv
+
+    env = TwinEnv(tiny["model"], tiny["scene"], max_steps=5, hand_jitter_m=0.002)
+    check_env(env, skip_render_check=True)
+    first, info = env.reset(seed=3)
+    again, info_again = env.reset(seed=3)
+    assert np.array_equal(first, again) and np.array_equal(info["hands"], info_again["hands"])
+    _, info_other = env.reset(seed=4)
+    assert not np.array_equal(info["hands"], info_other["hands"])
+    env.reset(seed=3)
+    assert info["chamfer_m"] > 0
+    rewards = []
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample() * 0)
+        rewards.append(reward)
+        assert env.observation_space.contains(obs)
+        assert not terminated
+    assert truncated and np.isfinite(rewards).all()
+    images = TwinEnv(
+        tiny["model"], tiny["scene"], max_steps=3, image_observation=True, render_mode="rgb_array"
+    )
+    check_env(images)
+    obs, _ = images.reset(seed=0)
+    assert obs["image"].shape == images.observation_space["image"].shape
+
+
+def test_example_script_writes_its_plot(tiny, tmp_path):
+    out = tmp_path / "rollout.png"
+    done = subprocess.run(
+        [sys.executable, str(REPO / "examples/python/rollout.py"),
+         str(tiny["model"]), str(tiny["scene"]), "--out", str(out)],
+        capture_output=True, text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert out.stat().st_size > 10_000

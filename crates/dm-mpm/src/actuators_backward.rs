@@ -3,7 +3,8 @@
 //! Forward: a_p = n^{-1/2} Σ_c [k_p ((x_c − x_p) − o_pc) + k_d (v_c − v_p)].
 //! Backward (given ā_p): x̄_p −= k_p √n ā_p, v̄_p −= k_d √n ā_p,
 //! k̄_p += n^{-1/2} Σ_c ((x_c − x_p) − o_pc)·ā_p, k̄_d likewise with the
-//! velocity difference. Rigid mode has no acceleration (its constraint is
+//! velocity difference; the anchors get x̄_c += k_p n^{-1/2} ā_p and
+//! v̄_c += k_d n^{-1/2} ā_p. Rigid mode has no acceleration (its constraint is
 //! handled by the frame's backward pass).
 
 use crate::actuators::{ActuatorMode, Actuators};
@@ -56,6 +57,36 @@ impl<T: Real> Actuators<T> {
             gains.kd += (damper.dot(&g) / n.sqrt()).to_f64();
         }
         gains
+    }
+
+    /// The anchors' share of the same VJP: x̄_c += k_p n^{-1/2} ā_p and
+    /// v̄_c += k_d n^{-1/2} ā_p over the particles p tied to anchor c
+    /// (summed in particle order). Rigid mode adds nothing.
+    pub fn anchors_vjp(
+        &self,
+        grad_accel: &[Vec3<T>],
+        grad_anchor_x: &mut [[f64; 3]],
+        grad_anchor_v: &mut [[f64; 3]],
+    ) {
+        if self.config.mode == ActuatorMode::Rigid {
+            return;
+        }
+        let (kp, kd) = (self.config.kp, self.config.kd);
+        for (p, g) in grad_accel.iter().enumerate() {
+            let (s, e) = (self.row_start[p] as usize, self.row_start[p + 1] as usize);
+            if e == s {
+                continue;
+            }
+            let scale = 1.0 / ((e - s) as f64).sqrt();
+            for i in s..e {
+                let c = self.anchor[i] as usize;
+                for a in 0..3 {
+                    let ga = g[a].to_f64() * scale;
+                    grad_anchor_x[c][a] += kp * ga;
+                    grad_anchor_v[c][a] += kd * ga;
+                }
+            }
+        }
     }
 
     /// Whether particle `p` (slot) is coupled to an anchor.

@@ -100,6 +100,12 @@ pub struct FrameGrads<T> {
     /// Adjoint of each particle's mass over the differentiated window
     /// (a density gradient's parameter).
     pub mass: Vec<T>,
+    /// Adjoints of the anchor positions at the frame's start and end
+    /// (`anchors_from`, `anchors_to` of the step) over the differentiated
+    /// window, through the substeps' interpolated anchor positions and the
+    /// frame's anchor velocity. Zero in rigid mode.
+    pub anchors_from: Vec<[f64; 3]>,
+    pub anchors_to: Vec<[f64; 3]>,
 }
 
 /// Adjoints of the learnable effect coefficients (`PhysicsConfig::effects`)
@@ -170,6 +176,12 @@ impl<T: Real> World<T> {
         let mut step = SubstepGrads::zeros(n);
         let k = self.consts;
         let coupled = self.actuators.coupling_count() > 0;
+        let anchors = tape.anchor_v.len();
+        let mut anchors_from = vec![[0.0; 3]; anchors];
+        let mut anchors_to = vec![[0.0; 3]; anchors];
+        let (mut grad_anchor_x, mut grad_anchor_v) = (anchors_from.clone(), anchors_from.clone());
+        let steps = self.config().substeps_per_frame;
+        let frame_dt = self.config().dt * steps as f64;
         for r in (0..tape.states.len()).rev() {
             let before = &tape.states[r];
             if coupled && self.actuators.config.mode == ActuatorMode::Rigid {
@@ -217,6 +229,24 @@ impl<T: Real> World<T> {
                 );
                 gains.kp += g.kp;
                 gains.kd += g.kd;
+                // Substep s of the frame had anchors from + (to − from)·s/S
+                // moving at (to − from)/frame_dt.
+                grad_anchor_x.iter_mut().for_each(|g| *g = [0.0; 3]);
+                grad_anchor_v.iter_mut().for_each(|g| *g = [0.0; 3]);
+                self.actuators.anchors_vjp(
+                    &step.external_accel,
+                    &mut grad_anchor_x,
+                    &mut grad_anchor_v,
+                );
+                let s = steps - tape.states.len() + r;
+                let along = s as f64 / steps as f64;
+                for c in 0..anchors {
+                    for a in 0..3 {
+                        let (gx, gv) = (grad_anchor_x[c][a], grad_anchor_v[c][a] / frame_dt);
+                        anchors_from[c][a] += (1.0 - along) * gx - gv;
+                        anchors_to[c][a] += along * gx + gv;
+                    }
+                }
             }
             for share in &step.effects {
                 effects.air_drag_linear += share[0].to_f64();
@@ -255,6 +285,8 @@ impl<T: Real> World<T> {
             gains,
             effects,
             mass: self.to_caller_order(&mass),
+            anchors_from,
+            anchors_to,
         })
     }
 }

@@ -225,12 +225,7 @@ pub struct Recording {
 #[derive(Debug)]
 pub struct Session {
     model: WorldModel,
-    body: Body,
-    physics: PhysicsConfig,
-    /// Fitted per-particle E (Pa), ν and expert weights.
-    youngs: Vec<f64>,
-    poisson: Vec<f64>,
-    expert_weights: Vec<[f64; 3]>,
+    coarse: CoarseModel,
     world: World<f32>,
     hands: [Hand; HAND_COUNT],
     material: MaterialControl,
@@ -247,11 +242,23 @@ pub struct Session {
     splats: Option<(Gaussians<f32>, SplatFollower)>,
 }
 
-impl Session {
-    /// A session at the model's first frame.
-    pub fn new(model: WorldModel, options: &PlayOptions) -> Result<Self, PlayError> {
+/// The simulation the playground runs of a model (and dm-plan plans in):
+/// the chosen particles, the physics for the chosen grid, substep and CFL
+/// number, and the particles' fitted material fields.
+#[derive(Clone, Debug)]
+pub struct CoarseModel {
+    pub body: Body,
+    pub physics: PhysicsConfig,
+    /// Fitted per-particle E (Pa), ν and expert weights.
+    pub youngs: Vec<f64>,
+    pub poisson: Vec<f64>,
+    pub expert_weights: Vec<[f64; 3]>,
+}
+
+impl CoarseModel {
+    pub fn new(model: &WorldModel, options: &PlayOptions) -> Result<Self, PlayError> {
         let mut physics = model.physics.clone();
-        let body = Body::new(&model, options.particles)?;
+        let body = Body::new(model, options.particles)?;
         if let Some(grid) = options.grid {
             if grid < 12 {
                 return Err(PlayError::InvalidOption {
@@ -285,32 +292,50 @@ impl Session {
         let (youngs, poisson, expert_weights) =
             model.patches.particle_fields(&model.params, &model.bounds);
         let ids = &body.model_index;
-        let youngs: Vec<f64> = ids.iter().map(|&i| youngs[i]).collect();
-        let poisson: Vec<f64> = ids.iter().map(|&i| poisson[i]).collect();
-        let expert_weights: Vec<[f64; 3]> = ids.iter().map(|&i| expert_weights[i]).collect();
+        Ok(Self {
+            youngs: ids.iter().map(|&i| youngs[i]).collect(),
+            poisson: ids.iter().map(|&i| poisson[i]).collect(),
+            expert_weights: ids.iter().map(|&i| expert_weights[i]).collect(),
+            body,
+            physics,
+        })
+    }
+
+    /// The fitted material with every E times `e_scale` and, when given,
+    /// one Poisson ratio `nu` for all.
+    pub fn material<T: dm_mpm::Real>(&self, e_scale: f64, nu: Option<f64>) -> ParticleMaterial<T> {
+        let e: Vec<f64> = self.youngs.iter().map(|e| e * e_scale).collect();
+        let nu: Vec<f64> = match nu {
+            Some(nu) => vec![nu; self.poisson.len()],
+            None => self.poisson.clone(),
+        };
+        ParticleMaterial::from_fields(&e, &nu, &self.expert_weights)
+    }
+}
+
+impl Session {
+    /// A session at the model's first frame.
+    pub fn new(model: WorldModel, options: &PlayOptions) -> Result<Self, PlayError> {
+        let coarse = CoarseModel::new(&model, options)?;
         let material = MaterialControl {
             e_scale: 1.0,
             nu: None,
-            damping: physics.particle_damping,
+            damping: coarse.physics.particle_damping,
         };
-        let view = SceneView::new(&body.particles, &physics)?;
+        let view = SceneView::new(&coarse.body.particles, &coarse.physics)?;
         // Replaced by `rebuild_world` below (with the material control).
         let world = World::new(
-            physics.clone(),
-            &body.particles,
-            body.particle_volume,
-            ParticleMaterial::from_fields(&youngs, &poisson, &expert_weights),
+            coarse.physics.clone(),
+            &coarse.body.particles,
+            coarse.body.particle_volume,
+            coarse.material(1.0, None),
             model.actuator,
         )?;
-        let positions = to_f32(&body.particles);
+        let positions = to_f32(&coarse.body.particles);
         let mut session = Self {
-            hands: initial_hands(&body.particles, &view),
-            body,
+            hands: initial_hands(&coarse.body.particles, &view),
+            coarse,
             world,
-            physics,
-            youngs,
-            poisson,
-            expert_weights,
             material,
             positions,
             sim_ms: 0.0,
@@ -329,7 +354,7 @@ impl Session {
     /// with the particles from now on; the page draws them instead of the
     /// particles.
     pub fn attach_splats(&mut self, gaussians: Gaussians<f32>) -> Result<(), PlayError> {
-        let mut follower = SplatFollower::new(gaussians.clone(), &self.body.particles)?;
+        let mut follower = SplatFollower::new(gaussians.clone(), &self.coarse.body.particles)?;
         if self.frame() > 0 {
             follower.advance(&self.positions)?;
         }
@@ -340,8 +365,8 @@ impl Session {
     /// The sprites the page draws (splats when attached, else particles).
     pub fn sprites(&self) -> Sprites {
         match &self.splats {
-            Some((gaussians, _)) => Sprites::splats(&self.body, gaussians),
-            None => Sprites::particles(&self.body),
+            Some((gaussians, _)) => Sprites::splats(&self.coarse.body, gaussians),
+            None => Sprites::particles(&self.coarse.body),
         }
     }
 
@@ -371,7 +396,7 @@ impl Session {
 
     /// The simulated particles.
     pub fn body(&self) -> &Body {
-        &self.body
+        &self.coarse.body
     }
 
     pub fn view(&self) -> &SceneView {
@@ -400,21 +425,14 @@ impl Session {
 
     /// Simulated seconds per frame.
     pub fn frame_dt(&self) -> f64 {
-        self.physics.dt * self.physics.substeps_per_frame as f64
+        self.coarse.physics.dt * self.coarse.physics.substeps_per_frame as f64
     }
 
     /// Per-particle material of the current control.
     fn particle_material(&self) -> ParticleMaterial<f32> {
-        let e: Vec<f64> = self
-            .youngs
-            .iter()
-            .map(|e| e * self.material.e_scale)
-            .collect();
-        let nu: Vec<f64> = match self.material.nu {
-            Some(nu) => vec![nu; self.poisson.len()],
-            None => self.poisson.clone(),
-        };
-        let mut m = ParticleMaterial::from_fields(&e, &nu, &self.expert_weights);
+        let mut m = self
+            .coarse
+            .material(self.material.e_scale, self.material.nu);
         if self.model.options.experts == dm_model::ExpertChoice::Nh {
             m.expert_weights
                 .iter_mut()
@@ -425,12 +443,13 @@ impl Session {
 
     /// Fitted Young's modulus of every simulated particle (Pa, before the scale).
     pub fn fitted_youngs(&self) -> &[f64] {
-        &self.youngs
+        &self.coarse.youngs
     }
 
     /// Index of the largest expert weight per particle.
     pub fn dominant_expert(&self) -> Vec<u8> {
-        self.expert_weights
+        self.coarse
+            .expert_weights
             .iter()
             .map(|w| {
                 let mut best = 0;
@@ -448,13 +467,13 @@ impl Session {
     /// `keep_state` it continues from the current particle state (grasps
     /// are captured again at the next frame from the attached hands).
     fn rebuild_world(&mut self, keep_state: bool) -> Result<(), PlayError> {
-        let mut physics = self.physics.clone();
+        let mut physics = self.coarse.physics.clone();
         physics.particle_damping = self.material.damping;
         let state = keep_state.then(|| self.world.state());
         let mut world = World::new(
             physics,
-            &self.body.particles,
-            self.body.particle_volume,
+            &self.coarse.body.particles,
+            self.coarse.body.particle_volume,
             self.particle_material(),
             playground_grasp(&self.model, &self.view),
         )?;
@@ -565,10 +584,10 @@ impl Session {
     /// Back to the first frame: particles at rest, hands released; the
     /// material control is kept.
     pub fn reset(&mut self) -> Result<(), PlayError> {
-        self.hands = initial_hands(&self.body.particles, &self.view);
-        self.positions = to_f32(&self.body.particles);
+        self.hands = initial_hands(&self.coarse.body.particles, &self.view);
+        self.positions = to_f32(&self.coarse.body.particles);
         if let Some((gaussians, follower)) = &mut self.splats {
-            *follower = SplatFollower::new(gaussians.clone(), &self.body.particles)?;
+            *follower = SplatFollower::new(gaussians.clone(), &self.coarse.body.particles)?;
         }
         self.recording = None;
         self.frame = 0;

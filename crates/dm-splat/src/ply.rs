@@ -83,10 +83,34 @@ pub fn write_ply<T: Real>(path: &Path, gaussians: &Gaussians<T>) -> Result<(), S
     std::fs::rename(&tmp, path).map_err(io_err)
 }
 
-/// Reads Gaussians from a 3DGS PLY file (binary little-endian, float
-/// vertex properties including at least the seventeen written by
-/// [`write_ply`] minus the normals).
-pub fn read_ply<T: Real>(path: &Path) -> Result<Gaussians<T>, SplatError> {
+/// The vertex element of a binary little-endian PLY file with float
+/// properties: their names and the raw rows.
+struct VertexTable {
+    properties: Vec<String>,
+    data: Vec<u8>,
+}
+
+impl VertexTable {
+    /// Column of property `name`.
+    fn column(&self, name: &str) -> Option<usize> {
+        self.properties.iter().position(|p| p == name)
+    }
+
+    fn rows(&self) -> std::slice::ChunksExact<'_, u8> {
+        self.data.chunks_exact((self.properties.len() * 4).max(1))
+    }
+}
+
+fn read_f32(row: &[u8], col: usize) -> f32 {
+    f32::from_le_bytes([
+        row[4 * col],
+        row[4 * col + 1],
+        row[4 * col + 2],
+        row[4 * col + 3],
+    ])
+}
+
+fn read_vertex_table(path: &Path) -> Result<VertexTable, SplatError> {
     let ply_err = |message: String| SplatError::Ply {
         path: path.to_path_buf(),
         message,
@@ -154,17 +178,6 @@ pub fn read_ply<T: Real>(path: &Path) -> Result<Gaussians<T>, SplatError> {
         }
     }
     let count = count.ok_or_else(|| ply_err("no vertex element".into()))?;
-    let column = |name: &str| {
-        properties
-            .iter()
-            .position(|p| p == name)
-            .ok_or_else(|| ply_err(format!("missing vertex property {name}")))
-    };
-    let required: Vec<usize> = PROPERTIES
-        .iter()
-        .filter(|n| !n.starts_with('n'))
-        .map(|n| column(n))
-        .collect::<Result<_, _>>()?;
     let stride = properties.len() * 4;
     let needed = count
         .checked_mul(stride)
@@ -183,18 +196,45 @@ pub fn read_ply<T: Real>(path: &Path) -> Result<Gaussians<T>, SplatError> {
     reader
         .read_exact(&mut data)
         .map_err(|e| ply_err(format!("vertex data shorter than {count} vertices: {e}")))?;
+    Ok(VertexTable { properties, data })
+}
+
+/// The vertex positions (x, y, z) of a PLY point cloud (binary
+/// little-endian, float vertex properties), metres.
+pub fn read_ply_points(path: &Path) -> Result<Vec<[f64; 3]>, SplatError> {
+    let table = read_vertex_table(path)?;
+    let columns = ["x", "y", "z"].map(|n| table.column(n));
+    let [Some(x), Some(y), Some(z)] = columns else {
+        return Err(SplatError::Ply {
+            path: path.to_path_buf(),
+            message: "missing vertex property x, y or z".into(),
+        });
+    };
+    Ok(table
+        .rows()
+        .map(|row| [x, y, z].map(|c| f64::from(read_f32(row, c))))
+        .collect())
+}
+
+/// Reads Gaussians from a 3DGS PLY file (binary little-endian, float
+/// vertex properties including at least the seventeen written by
+/// [`write_ply`] minus the normals).
+pub fn read_ply<T: Real>(path: &Path) -> Result<Gaussians<T>, SplatError> {
+    let table = read_vertex_table(path)?;
+    let column = |name: &str| {
+        table.column(name).ok_or_else(|| SplatError::Ply {
+            path: path.to_path_buf(),
+            message: format!("missing vertex property {name}"),
+        })
+    };
+    let required: Vec<usize> = PROPERTIES
+        .iter()
+        .filter(|n| !n.starts_with('n'))
+        .map(|n| column(n))
+        .collect::<Result<_, _>>()?;
     let mut gaussians = Gaussians::default();
-    for row in data.chunks_exact(stride) {
-        let value = |k: usize| {
-            let col = required[k];
-            let bytes = [
-                row[4 * col],
-                row[4 * col + 1],
-                row[4 * col + 2],
-                row[4 * col + 3],
-            ];
-            T::lit(f64::from(f32::from_le_bytes(bytes)))
-        };
+    for row in table.rows() {
+        let value = |k: usize| T::lit(f64::from(read_f32(row, required[k])));
         // `required` follows PROPERTIES without the three normals.
         let rgb = |k: usize| T::lit(value(k).to_f64() * SH_C0 + 0.5);
         gaussians.push(

@@ -21,7 +21,9 @@ pub use actions::Action;
 pub use effects::{EffectName, EffectSpec, draw_hidden_effect};
 pub use foreign::Engine;
 pub use shapes::Preset;
-pub use truth::{GroundTruth, TRUTH_VERSION, TruthFile, first_truth_version, simulate_truth};
+pub use truth::{
+    GroundTruth, TRUTH_VERSION, TruthFile, first_truth_version, plant_world, simulate_truth,
+};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

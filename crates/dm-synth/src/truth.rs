@@ -381,25 +381,29 @@ pub(crate) fn truth_physics<'a>(
     physics
 }
 
-/// Runs the truth simulation for `config`.
-pub fn simulate_truth(
-    config: &SynthConfig,
-    progress: Progress<'_>,
-) -> Result<GroundTruth, SynthError> {
-    let preset = config.preset;
-    let action = config.resolved_action();
-    let duration = config.frames as f64 / FPS;
-    let hands = plan(preset, action, config.two_hands, duration);
-    let cloud = truth_cloud(config);
-    let TruthMaterialFields {
-        youngs,
-        poisson,
-        expert_weights: weights,
-        inclusion,
-    } = truth_material(config, &cloud);
+/// The truth world before its settling frames, and what the truth file records of it.
+struct TruthSetup {
+    world: World<f32>,
+    physics: PhysicsConfig,
+    effect_extra: BTreeMap<String, serde_json::Value>,
+}
 
-    let anchor_frames = hand_anchor_frames(&hands, config.frames, 0.0);
-    let mut physics = truth_physics(preset, anchor_frames.iter().flatten(), WALL_ROOM_M);
+/// The truth world of `config` (material, hidden effect, grip) in a domain
+/// around the object, the hands' `anchor_frames` and `extra_points`.
+fn truth_setup(
+    config: &SynthConfig,
+    cloud: &ParticleCloud,
+    youngs: &[f64],
+    poisson: &[f64],
+    weights: &[[f64; 3]],
+    anchor_frames: &[Vec<[f64; 3]>],
+    extra_points: &[[f64; 3]],
+) -> Result<TruthSetup, SynthError> {
+    let mut physics = truth_physics(
+        config.preset,
+        anchor_frames.iter().flatten().chain(extra_points),
+        WALL_ROOM_M,
+    );
     let mut effect_extra = BTreeMap::new();
     match config.effect {
         Some(EffectSpec {
@@ -440,7 +444,7 @@ pub fn simulate_truth(
         )),
         _ => None,
     };
-    let material = ParticleMaterial::<f32>::from_fields(&youngs, &poisson, &weights);
+    let material = ParticleMaterial::<f32>::from_fields(youngs, poisson, weights);
     let grip = TRUTH_GRIP;
     let mut world = World::new(
         physics.clone(),
@@ -453,6 +457,80 @@ pub fn simulate_truth(
         world.set_density_factors(factors)?;
     }
 
+    Ok(TruthSetup {
+        world,
+        physics,
+        effect_extra,
+    })
+}
+
+/// The truth world of a dm-mpm truth file at the clip's first frame (the
+/// object settled, no hand holding it), in a domain that also holds
+/// `extra_points`: a world the scene's model did not fit, to carry other
+/// hand motions out in (dm-plan's plant). Its hands are the caller's.
+pub fn plant_world(truth: &TruthFile, extra_points: &[[f64; 3]]) -> Result<World<f32>, SynthError> {
+    if truth.engine.is_some() {
+        return Err(SynthError::InvalidOption {
+            option: "engine".into(),
+            problem: "the truth file comes from MuJoCo; only dm-mpm truth worlds can be rebuilt as plants".into(),
+        });
+    }
+    let config = &truth.config;
+    let cloud = truth_cloud(config);
+    let TruthMaterialFields {
+        youngs,
+        poisson,
+        expert_weights: weights,
+        ..
+    } = truth_material(config, &cloud);
+    let anchor_frames = hand_anchor_frames(&truth.hands, config.frames, 0.0);
+    let TruthSetup { mut world, .. } = truth_setup(
+        config,
+        &cloud,
+        &youngs,
+        &poisson,
+        &weights,
+        &anchor_frames,
+        extra_points,
+    )?;
+    let idle = vec![false; anchor_frames[0].len()];
+    for _ in 0..SETTLE_FRAMES {
+        world.step_frame(&anchor_frames[0], &anchor_frames[0], &idle)?;
+    }
+    Ok(world)
+}
+
+/// Runs the truth simulation for `config`.
+pub fn simulate_truth(
+    config: &SynthConfig,
+    progress: Progress<'_>,
+) -> Result<GroundTruth, SynthError> {
+    let preset = config.preset;
+    let action = config.resolved_action();
+    let duration = config.frames as f64 / FPS;
+    let hands = plan(preset, action, config.two_hands, duration);
+    let cloud = truth_cloud(config);
+    let TruthMaterialFields {
+        youngs,
+        poisson,
+        expert_weights: weights,
+        inclusion,
+    } = truth_material(config, &cloud);
+
+    let anchor_frames = hand_anchor_frames(&hands, config.frames, 0.0);
+    let TruthSetup {
+        mut world,
+        physics,
+        effect_extra,
+    } = truth_setup(
+        config,
+        &cloud,
+        &youngs,
+        &poisson,
+        &weights,
+        &anchor_frames,
+        &[],
+    )?;
     let total = SETTLE_FRAMES + config.frames;
     let idle = vec![false; anchor_frames[0].len()];
     for s in 0..SETTLE_FRAMES {
@@ -487,6 +565,21 @@ pub fn simulate_truth(
 mod tests {
     use super::*;
     use crate::actions::Action;
+
+    /// dm-plan's plant is the scene's truth world: rebuilt from the truth
+    /// file, it starts where the clip's first frame is, bit for bit.
+    #[test]
+    fn a_plant_world_starts_at_the_clips_first_frame() {
+        let config = SynthConfig::tiny(Preset::Rope, 3);
+        let truth = simulate_truth(&config, &mut |_, _, _| {}).expect("truth");
+        let world = plant_world(&truth.truth_file(&config), &[]).expect("plant");
+        let start: Vec<[f32; 3]> = world
+            .positions()
+            .iter()
+            .map(|p| p.map(|c| c as f32))
+            .collect();
+        assert_eq!(start, truth.frames[0]);
+    }
 
     /// The truth's slip walls held a rope's ends one cell away for whole
     /// clips (seed 1026); every preset and action now keeps its rest shape

@@ -1,0 +1,40 @@
+//! Planning hand motions with a fitted world model (docs/plan.md).
+//!
+//! A plan is, per hand, a grasp point on the object and a few knots the
+//! hand passes through ([`actions`]); it is scored at its last frame
+//! against a goal cloud ([`goal`], [`cost`]) in a coarse simulation of the
+//! model ([`world`]), searched by MPPI ([`mppi`]) and refined through the
+//! simulator's adjoint ([`gradient`]), then carried out in a plant — the
+//! fitted model itself or dm-synth's truth world — open loop or re-planned
+//! from noisy observations every few frames ([`plant`], [`run`]).
+
+pub mod actions;
+pub mod cost;
+pub mod goal;
+pub mod gradient;
+pub mod mppi;
+pub mod plant;
+pub mod run;
+pub mod video;
+pub mod world;
+
+use std::path::PathBuf;
+
+/// Why a plan could not be made or carried out.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    #[error(transparent)]
+    Bundle(#[from] dm_bundle::BundleError),
+    #[error(transparent)]
+    Model(#[from] dm_model::ModelError),
+    #[error(transparent)]
+    Simulation(#[from] dm_mpm::SimError),
+    #[error(transparent)]
+    Play(#[from] dm_play::PlayError),
+    #[error(transparent)]
+    Synth(#[from] dm_synth::SynthError),
+    #[error("invalid option `{option}`: {problem}")]
+    InvalidOption { option: String, problem: String },
+    #[error("{path}: {problem}")]
+    File { path: PathBuf, problem: String },
+}

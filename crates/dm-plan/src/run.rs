@@ -1,0 +1,775 @@
+//! One planning run: options (the command line and the run record), the
+//! plan searched in the planning world, carried out in the plant open loop
+//! or re-planned from observations, and everything written to the output
+//! directory.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use dm_bundle::{Bundle, write_json_atomic, write_npy_file};
+use dm_model::metrics::{chamfer_to, match_tracks};
+use dm_model::{ModelOptions, WorldModel};
+use dm_mpm::state::Particles;
+use dm_play::PlayOptions;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::Serialize;
+
+use crate::PlanError;
+use crate::actions::{ActionPlan, Workspace};
+use crate::cost::{CostWeights, Scores, TerminalCost};
+use crate::goal::Goal;
+use crate::gradient::{GradientOptions, refine};
+use crate::mppi::{MppiOptions, mppi};
+use crate::plant::Plant;
+use crate::world::{PlanningModel, rollout};
+
+/// Which optimiser searches the knots.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Optimizer {
+    /// Sampling only (MPPI).
+    Mppi,
+    /// Adam through the simulator's adjoint only.
+    Gradient,
+    /// MPPI, then gradient refinement of its best plan.
+    MppiGradient,
+}
+
+/// `dm-plan`'s options, saved as the run record in plan.json.
+#[derive(Clone, Debug, Serialize, clap::Parser)]
+#[command(
+    name = "dm-plan",
+    about = "Plan hand motions that bring an object to a goal with its fitted world model, and carry them out"
+)]
+pub struct PlanOptions {
+    /// Model directory (dm-fit's output).
+    pub model_dir: PathBuf,
+    /// The scene bundle the model was fitted on (first-frame hands, cameras, goal frames).
+    #[arg(long)]
+    pub bundle: PathBuf,
+    /// The goal: `frame:T` (the bundle's tracked points at frame T), a binary PLY point cloud, or a name (rope: straighten, u-shape, move; cloth: fold, flatten, move; toy: place, squash, rotate).
+    #[arg(long)]
+    pub goal: String,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// dm-synth's truth file of the scene: carry the plan out in that truth world (hidden effects included) instead of the fitted model.
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// Search: MPPI, gradient refinement through the simulator, or both in turn.
+    #[arg(long, value_enum, default_value_t = Optimizer::MppiGradient)]
+    pub optimizer: Optimizer,
+    /// Frames the plan spans.
+    #[arg(long, default_value_t = 120)]
+    pub horizon: usize,
+    /// Knots per hand.
+    #[arg(long, default_value_t = 4)]
+    pub knots: usize,
+    /// Hands (grasp points chosen where the goal moves the object most).
+    #[arg(long, default_value_t = 2)]
+    pub hands: usize,
+    /// MPPI samples per iteration.
+    #[arg(long, default_value_t = 20)]
+    pub samples: usize,
+    /// MPPI iterations.
+    #[arg(long, default_value_t = 10)]
+    pub iterations: usize,
+    /// MPPI knot noise, metres.
+    #[arg(long, default_value_t = 0.02)]
+    pub noise_m: f64,
+    /// Gradient refinement steps.
+    #[arg(long, default_value_t = 20)]
+    pub gradient_iters: usize,
+    /// Gradient refinement step (Adam), metres.
+    #[arg(long, default_value_t = 0.004)]
+    pub learning_rate_m: f64,
+    /// Substeps per frame differentiated exactly in the refinement.
+    #[arg(long, default_value_t = 8)]
+    pub window: usize,
+    /// Re-plan from the observed state every N frames (0: open loop).
+    #[arg(long, default_value_t = 0)]
+    pub replan_every: usize,
+    /// MPPI iterations (and refinement steps) of each re-plan.
+    #[arg(long, default_value_t = 3)]
+    pub replan_iterations: usize,
+    /// Noise of the observed positions re-planning starts from, millimetres.
+    #[arg(long, default_value_t = 1.5)]
+    pub observation_noise_mm: f64,
+    /// Fastest hand speed before the cost penalises it, m/s.
+    #[arg(long, default_value_t = 0.5)]
+    pub max_speed: f64,
+    /// How far the hands may move beyond the object's first-frame box, metres.
+    #[arg(long, default_value_t = 0.2)]
+    pub workspace_margin_m: f64,
+    /// Plan in the model's own particles, grid and substeps (slower) instead of the playground's coarse simulation.
+    #[arg(long)]
+    pub exact: bool,
+    /// Plan with the untrained model of the bundle instead of MODEL_DIR's (for comparison).
+    #[arg(long)]
+    pub untrained: bool,
+    /// Bundle camera of the video.
+    #[arg(long, default_value_t = 0)]
+    pub camera: usize,
+    /// Write the frames but no MP4.
+    #[arg(long)]
+    pub no_video: bool,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// The distances of a rollout's last frame to the goal.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outcome {
+    pub final_chamfer_m: f64,
+    pub final_track_m: Option<f64>,
+}
+
+/// `plan.json` (keys documented in docs/plan.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct PlanRecord {
+    pub options: PlanOptions,
+    pub goal: GoalRecord,
+    /// The plan's last frame in the planning world.
+    pub planned: Outcome,
+    /// The last frame carried out in the plant.
+    pub executed: Outcome,
+    pub plant: String,
+    /// The untouched object's distance to the goal (nothing done).
+    pub start: Outcome,
+    pub rollouts: usize,
+    pub seconds: f64,
+    pub replans: usize,
+    pub history: History,
+    pub planning_world: PlanningWorldRecord,
+    pub actions: ActionPlan,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct GoalRecord {
+    pub name: String,
+    pub points: usize,
+    pub correspondences: bool,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct History {
+    pub mppi: Vec<f64>,
+    pub gradient: Vec<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PlanningWorldRecord {
+    pub particles: usize,
+    pub grid: usize,
+    pub substeps_per_frame: usize,
+    pub grasp_radius_m: f64,
+}
+
+/// Progress: (stage, done, total).
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+
+fn invalid(option: &str, problem: impl Into<String>) -> PlanError {
+    PlanError::InvalidOption {
+        option: option.into(),
+        problem: problem.into(),
+    }
+}
+
+impl PlanOptions {
+    fn validate(&self) -> Result<(), PlanError> {
+        let checks: [(&str, bool, &str); 9] = [
+            ("--horizon", self.horizon >= 2, "needs at least 2 frames"),
+            (
+                "--knots",
+                self.knots >= 1 && self.knots <= self.horizon,
+                "needs 1 to HORIZON knots",
+            ),
+            (
+                "--hands",
+                (1..=4).contains(&self.hands),
+                "needs 1 to 4 hands",
+            ),
+            ("--samples", self.samples >= 2, "needs at least 2 samples"),
+            (
+                "--noise-m",
+                self.noise_m.is_finite() && self.noise_m > 0.0,
+                "needs a positive noise",
+            ),
+            (
+                "--learning-rate-m",
+                self.learning_rate_m.is_finite() && self.learning_rate_m > 0.0,
+                "needs a positive step",
+            ),
+            ("--window", self.window >= 1, "needs at least 1 substep"),
+            (
+                "--max-speed",
+                self.max_speed.is_finite() && self.max_speed > 0.0,
+                "needs a positive speed",
+            ),
+            (
+                "--observation-noise-mm",
+                self.observation_noise_mm.is_finite() && self.observation_noise_mm >= 0.0,
+                "needs a noise ≥ 0",
+            ),
+        ];
+        for (option, ok, problem) in checks {
+            if !ok {
+                return Err(invalid(option, problem));
+            }
+        }
+        if !(self.workspace_margin_m.is_finite() && self.workspace_margin_m >= 0.0) {
+            return Err(invalid("--workspace-margin-m", "needs a margin ≥ 0"));
+        }
+        Ok(())
+    }
+}
+
+/// The scene's up axis and floor height.
+fn up_and_floor(bundle: &Bundle) -> ([f64; 3], f64) {
+    (
+        bundle.meta.up_axis.unit_vector(),
+        bundle.meta.floor_height_m,
+    )
+}
+
+/// The goal the options name, with correspondences in model particles.
+fn read_goal(
+    options: &PlanOptions,
+    bundle: &Bundle,
+    model: &WorldModel,
+) -> Result<Goal, PlanError> {
+    if let Some(frame) = options.goal.strip_prefix("frame:") {
+        let frame = frame.parse().map_err(|_| {
+            invalid(
+                "--goal",
+                format!("`{}`: frame:T needs a frame number", options.goal),
+            )
+        })?;
+        let matched = match_tracks(&model.particles, &bundle.tracks);
+        return Goal::from_bundle_frame(bundle, frame, &matched);
+    }
+    if options.goal.ends_with(".ply") {
+        return Goal::from_ply(Path::new(&options.goal));
+    }
+    let (up, floor) = up_and_floor(bundle);
+    Goal::named(
+        &options.goal,
+        bundle.meta.category,
+        &model.particles,
+        model.surface_count,
+        up,
+        floor,
+    )
+}
+
+/// Grasp points: where the goal moves the surface most, the next hand
+/// where it moves it much (half the most or more) and farthest from the
+/// hands chosen; without correspondences, the bundle's first-frame hands.
+fn grasp_points(
+    options: &PlanOptions,
+    bundle: &Bundle,
+    planning: &PlanningModel,
+    goal: &Goal,
+    correspondences: Option<&[usize]>,
+) -> Vec<[f64; 3]> {
+    let particles = planning.particles();
+    let Some(ids) = correspondences else {
+        let anchors = dm_model::hand_anchors(bundle, 0);
+        return bundle
+            .meta
+            .hands
+            .iter()
+            .take(options.hands)
+            .map(|h| {
+                let range = &anchors[h.anchor_range[0]..h.anchor_range[1]];
+                let n = range.len().max(1) as f64;
+                std::array::from_fn(|a| range.iter().map(|p| p[a]).sum::<f64>() / n)
+            })
+            .collect();
+    };
+    let moved: Vec<(usize, f64)> = ids
+        .iter()
+        .zip(&goal.points)
+        .map(|(&p, g)| {
+            let d = (0..3)
+                .map(|a| (g[a] - particles[p][a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            (p, d)
+        })
+        .collect();
+    let most = moved.iter().map(|m| m.1).fold(0.0, f64::max);
+    let mut chosen: Vec<usize> = Vec::new();
+    if let Some(&(first, _)) = moved.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
+        chosen.push(first);
+    }
+    while chosen.len() < options.hands {
+        let far = moved
+            .iter()
+            .filter(|m| m.1 >= 0.5 * most)
+            .map(|m| {
+                let gap = chosen
+                    .iter()
+                    .map(|&c| {
+                        (0..3)
+                            .map(|a| (particles[m.0][a] - particles[c][a]).powi(2))
+                            .sum::<f64>()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                (m.0, gap)
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match far {
+            Some((p, gap)) if gap > 0.0 => chosen.push(p),
+            _ => break,
+        }
+    }
+    chosen.iter().map(|&p| particles[p]).collect()
+}
+
+/// The box the hands stay in: the object's first-frame box grown by the
+/// margin (upwards by twice it), never below the floor.
+fn workspace(planning: &PlanningModel, margin: f64, up: [f64; 3], floor: f64) -> Workspace {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in planning.particles() {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a] - margin);
+            hi[a] = hi[a].max(p[a] + margin);
+        }
+    }
+    for a in 0..3 {
+        if up[a] > 0.5 {
+            lo[a] = lo[a].max(floor + 0.005);
+            hi[a] += margin;
+        } else if up[a] < -0.5 {
+            hi[a] = hi[a].min(floor - 0.005);
+            lo[a] -= margin;
+        }
+    }
+    Workspace { lo, hi }
+}
+
+/// A first guess: each hand moves its grasp point straight towards where
+/// the goal puts it, knot by knot.
+fn initial_plan(
+    grasps: &[[f64; 3]],
+    goal: &Goal,
+    correspondences: Option<&[usize]>,
+    planning: &PlanningModel,
+    knots: usize,
+    horizon: usize,
+) -> ActionPlan {
+    let mut plan = ActionPlan::at_rest(grasps, knots, horizon);
+    if let Some(ids) = correspondences {
+        let particles = planning.particles();
+        for hand in &mut plan.hands {
+            // The goal point of the grasped particle (nearest to the grasp).
+            let target = ids
+                .iter()
+                .zip(&goal.points)
+                .min_by(|a, b| {
+                    let d = |p: usize| {
+                        (0..3)
+                            .map(|c| (particles[p][c] - hand.grasp[c]).powi(2))
+                            .sum::<f64>()
+                    };
+                    d(*a.0).total_cmp(&d(*b.0))
+                })
+                .map(|(_, g)| *g);
+            if let Some(g) = target {
+                for (j, knot) in hand.knots.iter_mut().enumerate() {
+                    let s = (j + 1) as f64 / knots as f64;
+                    *knot = std::array::from_fn(|a| s * (g[a] - hand.grasp[a]));
+                }
+            }
+        }
+    }
+    plan
+}
+
+struct Search<'a> {
+    options: &'a PlanOptions,
+    planning: &'a PlanningModel,
+    cost: &'a TerminalCost,
+    weights: CostWeights,
+    workspace: Workspace,
+    rollouts: usize,
+    history: History,
+}
+
+impl Search<'_> {
+    /// The cost of a plan rolled out from `start` (the first frame when None).
+    fn evaluate(
+        &mut self,
+        plan: &ActionPlan,
+        start: Option<&Particles<f32>>,
+    ) -> Result<f64, PlanError> {
+        let mut world = self.planning.world::<f32>()?;
+        if let Some(state) = start {
+            world.set_state(state)?;
+        }
+        self.rollouts += 1;
+        match rollout(&mut world, plan, true) {
+            Ok(frames) => {
+                let last = frames.last().map(Vec::as_slice).unwrap_or(&[]);
+                let (value, _) = self.cost.value_and_gradient(last);
+                let (penalty, _) =
+                    crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
+                Ok(value + penalty)
+            }
+            // A sample that diverges is a bad sample, not a failed search.
+            Err(PlanError::Simulation(_)) => Ok(f64::INFINITY),
+            Err(other) => Err(other),
+        }
+    }
+
+    /// Searches from `plan` with `iterations` MPPI iterations and
+    /// `gradient_iters` refinement steps (as the optimiser allows).
+    fn search(
+        &mut self,
+        plan: &ActionPlan,
+        start: Option<&Particles<f32>>,
+        iterations: usize,
+        gradient_iters: usize,
+        seed: u64,
+        progress: Progress<'_>,
+    ) -> Result<ActionPlan, PlanError> {
+        let mut best = plan.clone();
+        best.project(&self.workspace);
+        let o = self.options;
+        if o.optimizer != Optimizer::Gradient && iterations > 0 {
+            let mppi_options = MppiOptions {
+                samples: o.samples,
+                iterations,
+                noise_m: o.noise_m,
+                seed,
+                ..MppiOptions::default()
+            };
+            let template = best.clone();
+            let workspace = self.workspace;
+            let project = move |params: &mut Vec<f64>| {
+                let mut p = template.with_params(params);
+                p.project(&workspace);
+                *params = p.params();
+            };
+            let template = best.clone();
+            let result = mppi(
+                &mut |params| self.evaluate(&template.with_params(params), start),
+                &best.params(),
+                &project,
+                &mppi_options,
+                &mut |i, _| progress("MPPI", i, iterations),
+            )?;
+            self.history.mppi.extend(&result.history);
+            best = best.with_params(&result.best);
+        }
+        if o.optimizer != Optimizer::Mppi && gradient_iters > 0 {
+            let gradient_options = GradientOptions {
+                iterations: gradient_iters,
+                learning_rate_m: o.learning_rate_m,
+                window: o.window,
+            };
+            let refined = refine(
+                self.planning,
+                start,
+                &best,
+                self.cost,
+                &self.weights,
+                &self.workspace,
+                &gradient_options,
+                &mut |i, _| progress("gradient", i, gradient_iters),
+            )?;
+            self.rollouts += refined.rollouts;
+            self.history.gradient.extend(&refined.history);
+            best = best.with_params(&refined.best);
+        }
+        Ok(best)
+    }
+}
+
+/// The rest of `plan` from frame `t`, with the hands where they are then
+/// and its knots where the plan had them (as many, spread over what is left).
+fn shifted(plan: &ActionPlan, t: usize) -> ActionPlan {
+    let remaining = plan.horizon - t;
+    let now = plan.anchors(t);
+    let k = plan.knot_count();
+    let mut out = ActionPlan::at_rest(&now, k, remaining);
+    for (h, hand) in out.hands.iter_mut().enumerate() {
+        for (j, knot) in hand.knots.iter_mut().enumerate() {
+            let frame = t as f64 + remaining as f64 * (j + 1) as f64 / k as f64;
+            let weights = plan.knot_weights(frame);
+            let mut p = plan.hands[h].grasp;
+            for &(i, w) in &weights {
+                for a in 0..3 {
+                    p[a] += w * plan.hands[h].knots[i][a];
+                }
+            }
+            *knot = std::array::from_fn(|a| p[a] - now[h][a]);
+        }
+    }
+    out
+}
+
+fn outcome(scores: Scores) -> Outcome {
+    Outcome {
+        final_chamfer_m: scores.chamfer_m,
+        final_track_m: scores.track_m,
+    }
+}
+
+/// What `run` returns besides the files.
+#[derive(Debug)]
+pub struct RunResult {
+    pub record: PlanRecord,
+    pub planned: Vec<Vec<[f64; 3]>>,
+    pub executed: Vec<Vec<[f64; 3]>>,
+    /// Anchors carried out per frame (the plant's hands).
+    pub hands: Vec<Vec<[f64; 3]>>,
+    pub goal: Goal,
+    /// Radius the model's particles are drawn with.
+    pub splat_radius: f32,
+    /// Seconds per frame.
+    pub frame_dt: f64,
+}
+
+/// Plans, carries the plan out and returns everything (`write_outputs`
+/// writes it).
+pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, PlanError> {
+    options.validate()?;
+    let clock = Instant::now();
+    let bundle = Bundle::open(&options.bundle)?;
+    let model: WorldModel = if options.untrained {
+        WorldModel::from_bundle(
+            &bundle,
+            &ModelOptions {
+                residual: dm_model::ResidualKind::None,
+                ..ModelOptions::default()
+            },
+        )?
+    } else {
+        dm_bundle::read_json(&options.model_dir.join("model.json"))?
+    };
+    let play = if options.exact {
+        PlayOptions::default()
+    } else {
+        PlayOptions::interactive()
+    };
+    let planning = PlanningModel::new(&model, &play)?;
+    let goal = read_goal(options, &bundle, &model)?;
+    let correspondences: Option<Vec<usize>> = goal.particles.as_ref().map(|ids| {
+        let points: Vec<[f64; 3]> = ids.iter().map(|&i| model.particles[i]).collect();
+        planning.nearest_particles(&points)
+    });
+    let (up, floor) = up_and_floor(&bundle);
+    let workspace = workspace(&planning, options.workspace_margin_m, up, floor);
+    let grasps = grasp_points(
+        options,
+        &bundle,
+        &planning,
+        &goal,
+        correspondences.as_deref(),
+    );
+    if grasps.is_empty() {
+        return Err(invalid(
+            "--goal",
+            "no grasp point found: the goal has no correspondences and the bundle no hands",
+        ));
+    }
+    let weights = CostWeights {
+        max_speed_m_s: options.max_speed,
+        ..CostWeights::default()
+    };
+    let cost = TerminalCost::new(
+        goal.points.clone(),
+        correspondences.clone(),
+        planning.surface_count(),
+        weights,
+    );
+    let mut search = Search {
+        options,
+        planning: &planning,
+        cost: &cost,
+        weights,
+        workspace,
+        rollouts: 0,
+        history: History::default(),
+    };
+    let first = initial_plan(
+        &grasps,
+        &goal,
+        correspondences.as_deref(),
+        &planning,
+        options.knots,
+        options.horizon,
+    );
+    let mut plan = search.search(
+        &first,
+        None,
+        options.iterations,
+        options.gradient_iters,
+        options.seed,
+        progress,
+    )?;
+    let initial_plan_record = plan.clone();
+
+    let mut planning_world = planning.world::<f32>()?;
+    let planned = rollout(&mut planning_world, &plan, true)?;
+    let planned_outcome = outcome(cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[])));
+
+    // The plant, and the planning world tracking it (its prediction of the
+    // state between observations).
+    let (mut plant, plant_name) = match &options.plant {
+        Some(path) => {
+            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
+            let extra = [workspace.lo, workspace.hi];
+            (
+                Plant::truth(dm_synth::plant_world(&truth, &extra)?),
+                format!("truth:{}", path.display()),
+            )
+        }
+        None => (Plant::model(&model)?, "model".to_string()),
+    };
+    let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions());
+    let observed_of: Vec<usize> = planning
+        .particles()
+        .iter()
+        .map(|p| plant_index.nearest(p, 1).first().map_or(0, |n| n.0))
+        .collect();
+    let start_outcome = Outcome {
+        final_chamfer_m: chamfer_to(&plant.outline(), &goal.points),
+        final_track_m: None,
+    };
+    let mut tracker = planning.world::<f32>()?;
+    let mut executed = vec![plant.positions()];
+    let mut hands = vec![plan.anchors(0)];
+    let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
+        .map_err(|e| invalid("--observation-noise-mm", e.to_string()))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed);
+    let mut replans = 0;
+    let mut t = 0;
+    // `plan` runs from frame `offset` of the whole motion.
+    let mut offset = 0;
+    while t < options.horizon {
+        let segment = if options.replan_every == 0 {
+            options.horizon - t
+        } else {
+            options.replan_every.min(options.horizon - t)
+        };
+        for s in 0..segment {
+            let (from, to) = (
+                plan.anchors(t - offset + s),
+                plan.anchors(t - offset + s + 1),
+            );
+            plant.step(&from, &to, t + s == 0)?;
+            tracker.step_frame(&from, &to, &vec![t - offset + s == 0; from.len()])?;
+            executed.push(plant.positions());
+            hands.push(to);
+            progress("execute", t + s + 1, options.horizon);
+        }
+        t += segment;
+        if options.replan_every > 0 && t < options.horizon {
+            // Observed: the plant's positions with noise, its velocities;
+            // the deformation as the model predicts it.
+            let truth = plant.state();
+            let mut state = tracker.state();
+            for (p, &q) in observed_of.iter().enumerate() {
+                for a in 0..3 {
+                    state.x[p][a] = truth.x[q][a] + noise.sample(&mut rng) as f32;
+                    state.v[p][a] = truth.v[q][a];
+                }
+            }
+            let rest = shifted(&plan, t - offset);
+            plan = search.search(
+                &rest,
+                Some(&state),
+                options.replan_iterations,
+                options.replan_iterations,
+                options.seed + replans as u64 + 1,
+                progress,
+            )?;
+            offset = t;
+            tracker = planning.world::<f32>()?;
+            tracker.set_state(&state)?;
+            replans += 1;
+        }
+    }
+    let executed_outcome = {
+        let last = executed.last().cloned().unwrap_or_default();
+        let outline = match &plant {
+            Plant::Model { surface_count, .. } => last[..*surface_count].to_vec(),
+            Plant::Truth { .. } => last,
+        };
+        Outcome {
+            final_chamfer_m: chamfer_to(&outline, &goal.points),
+            final_track_m: None,
+        }
+    };
+    let record = PlanRecord {
+        options: options.clone(),
+        goal: GoalRecord {
+            name: goal.name.clone(),
+            points: goal.points.len(),
+            correspondences: goal.particles.is_some(),
+        },
+        planned: planned_outcome,
+        executed: executed_outcome,
+        plant: plant_name,
+        start: start_outcome,
+        rollouts: search.rollouts,
+        seconds: clock.elapsed().as_secs_f64(),
+        replans,
+        history: search.history.clone(),
+        planning_world: PlanningWorldRecord {
+            particles: planning.particles().len(),
+            grid: planning_world.config().grid_res,
+            substeps_per_frame: planning_world.config().substeps_per_frame,
+            grasp_radius_m: planning.grasp_radius(),
+        },
+        actions: initial_plan_record,
+    };
+    Ok(RunResult {
+        record,
+        planned,
+        executed,
+        hands,
+        goal,
+        splat_radius: model.splat_radius(),
+        frame_dt: planning.frame_dt(),
+    })
+}
+
+fn frames_array(frames: &[Vec<[f64; 3]>]) -> ndarray::Array3<f32> {
+    let n = frames.first().map_or(0, Vec::len);
+    ndarray::Array3::from_shape_fn((frames.len(), n, 3), |(t, i, a)| frames[t][i][a] as f32)
+}
+
+/// Writes actions.json/.npy, planned.npy, executed.npy, goal.npy and
+/// plan.json into `out` (each atomically; plan.json last).
+pub fn write_outputs(out: &Path, result: &RunResult) -> Result<(), PlanError> {
+    std::fs::create_dir_all(out).map_err(|e| PlanError::File {
+        path: out.to_path_buf(),
+        problem: format!("creating the directory: {e}"),
+    })?;
+    let hands = &result.hands;
+    let h = hands.first().map_or(0, Vec::len);
+    let actions = ndarray::Array3::from_shape_fn((hands.len(), h, 3), |(t, i, a)| hands[t][i][a]);
+    write_npy_file(&out.join("actions.npy"), &actions)?;
+    write_json_atomic(
+        &out.join("actions.json"),
+        &serde_json::json!({
+            "frame_dt_s": result.frame_dt,
+            "hands_per_frame": hands,
+            "plan": result.record.actions,
+        }),
+    )?;
+    write_npy_file(&out.join("planned.npy"), &frames_array(&result.planned))?;
+    write_npy_file(&out.join("executed.npy"), &frames_array(&result.executed))?;
+    write_npy_file(
+        &out.join("goal.npy"),
+        &frames_array(std::slice::from_ref(&result.goal.points)),
+    )?;
+    write_json_atomic(&out.join("plan.json"), &result.record)?;
+    Ok(())
+}

@@ -1,0 +1,108 @@
+//! The world a plan is optimised in: the fitted model simulated as the
+//! playground simulates it (dm-play's coarse simulation: farthest-point
+//! samples of the particles, a coarser grid, the CFL-bounded substep),
+//! the hands held by the model's compliant actuators. `--exact` plans in
+//! the model's own particles, grid and substeps instead.
+
+use dm_model::WorldModel;
+use dm_mpm::neighbors::PointIndex;
+use dm_mpm::{ActuatorConfig, ActuatorMode, Real, World};
+use dm_play::PlayOptions;
+use dm_play::session::CoarseModel;
+
+use crate::PlanError;
+use crate::actions::ActionPlan;
+
+/// The planning world's setup, shared by every rollout.
+#[derive(Debug, Clone)]
+pub struct PlanningModel {
+    coarse: CoarseModel,
+    actuator: ActuatorConfig,
+    neo_hookean_only: bool,
+}
+
+impl PlanningModel {
+    pub fn new(model: &WorldModel, options: &PlayOptions) -> Result<Self, PlanError> {
+        let coarse = CoarseModel::new(model, options)?;
+        // Fewer particles sit farther apart: keep a few inside each grasp.
+        let spacing = coarse.body.particle_volume.cbrt();
+        let actuator = ActuatorConfig {
+            mode: match model.actuator.mode {
+                // Rigid hands have no adjoint for their anchors.
+                ActuatorMode::Rigid => ActuatorMode::Distributed,
+                mode => mode,
+            },
+            grasp_radius: model.actuator.grasp_radius.max(1.5 * spacing),
+            ..model.actuator
+        };
+        Ok(Self {
+            coarse,
+            actuator,
+            neo_hookean_only: model.options.experts == dm_model::ExpertChoice::Nh,
+        })
+    }
+
+    /// First-frame particles of the planning world (surface first).
+    pub fn particles(&self) -> &[[f64; 3]] {
+        &self.coarse.body.particles
+    }
+
+    pub fn surface_count(&self) -> usize {
+        self.coarse.body.surface_count
+    }
+
+    /// Seconds per video frame.
+    pub fn frame_dt(&self) -> f64 {
+        self.coarse.physics.dt * self.coarse.physics.substeps_per_frame as f64
+    }
+
+    pub fn grasp_radius(&self) -> f64 {
+        self.actuator.grasp_radius
+    }
+
+    /// A fresh world at the first frame.
+    pub fn world<T: Real>(&self) -> Result<World<T>, PlanError> {
+        let mut material = self.coarse.material::<T>(1.0, None);
+        if self.neo_hookean_only {
+            material
+                .expert_weights
+                .iter_mut()
+                .for_each(|w| *w = [T::one(), T::zero(), T::zero()]);
+        }
+        Ok(World::new(
+            self.coarse.physics.clone(),
+            &self.coarse.body.particles,
+            self.coarse.body.particle_volume,
+            material,
+            self.actuator,
+        )?)
+    }
+
+    /// The planning-world particle nearest each of `points` at the first frame.
+    pub fn nearest_particles(&self, points: &[[f64; 3]]) -> Vec<usize> {
+        let index = PointIndex::new(self.particles());
+        points
+            .iter()
+            .map(|p| index.nearest(p, 1).first().map_or(0, |n| n.0))
+            .collect()
+    }
+}
+
+/// Steps `world` through `plan` from its frame 0 (where the hands grasp
+/// when `grasp_first`) to its horizon; positions of every frame, frame 0
+/// first.
+pub fn rollout<T: Real>(
+    world: &mut World<T>,
+    plan: &ActionPlan,
+    grasp_first: bool,
+) -> Result<Vec<Vec<[f64; 3]>>, PlanError> {
+    let path = plan.path();
+    let hands = plan.hands.len();
+    let mut frames = vec![world.positions()];
+    for t in 0..plan.horizon {
+        let grasp = vec![grasp_first && t == 0; hands];
+        world.step_frame(&path[t], &path[t + 1], &grasp)?;
+        frames.push(world.positions());
+    }
+    Ok(frames)
+}

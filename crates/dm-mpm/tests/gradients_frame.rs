@@ -5,6 +5,7 @@
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Mat3, Vec3};
 use dm_mpm::state::Particles;
+use dm_mpm::tape::FrameGrads;
 use dm_mpm::{ActuatorConfig, ParticleMaterial, PhysicsConfig, World};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -79,6 +80,18 @@ fn position_velocity_probe(rng: &mut ChaCha8Rng, n: usize) -> ParticleGrads<f64>
         f: vec![Mat3::zeros(); n],
         c: vec![Mat3::zeros(); n],
     }
+}
+
+/// Steps `w` one taped frame (FROM → `anchors_to()`, every substep
+/// recorded) and runs its backward pass for a random position/velocity
+/// probe drawn from `rng`.
+fn probed_frame(w: &mut World<f64>, rng: &mut ChaCha8Rng) -> (ParticleGrads<f64>, FrameGrads<f64>) {
+    let probe = position_velocity_probe(rng, w.particle_count());
+    let tape = w
+        .step_frame_taped(&FROM, &anchors_to(), &[true, true], usize::MAX)
+        .expect("taped frame");
+    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    (probe, grads)
 }
 
 fn loss(state: &Particles<f64>, probe: &ParticleGrads<f64>) -> f64 {
@@ -341,15 +354,10 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
         ..dm_mpm::Effects::default()
     };
     w.set_effects(base.clone()).expect("effects");
-    let n = w.particle_count();
     let start = w.state();
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let probe = position_velocity_probe(&mut rng, n);
-    let tape = w
-        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
-        .expect("taped frame");
-    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    let (probe, grads) = probed_frame(&mut w, &mut rng);
     // Each coefficient is probed along a direction as large as itself: the
     // loss moves ∝ dt |v| per unit of drag, so an absolute FD_STEP would sit
     // at the round-off floor of the O(1) loss; a relative step of 1e-6
@@ -398,19 +406,11 @@ fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
 fn frame_adjoint_of_the_particle_damping_rate_matches_finite_differences() {
     let rate = 20.0;
     let mut w = world_with(|config| config.particle_damping = rate);
-    let n = w.particle_count();
     let start = w.state();
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(12);
-    let probe = position_velocity_probe(&mut rng, n);
-    let tape = w
-        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
-        .expect("taped frame");
-    let analytic = w
-        .backward_frame(&tape, &probe)
-        .expect("backward")
-        .effects
-        .particle_damping;
+    let (probe, grads) = probed_frame(&mut w, &mut rng);
+    let analytic = grads.effects.particle_damping;
     assert!(analytic != 0.0, "the frame must depend on the damping");
     // A relative step, as for the effect coefficients above.
     check("particle_damping", analytic * rate, &mut |h| {
@@ -456,11 +456,7 @@ fn issue6_frame_adjoint_of_floor_friction_matches_finite_differences() {
     w.set_state(&start).expect("state");
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(13);
-    let probe = position_velocity_probe(&mut rng, n);
-    let tape = w
-        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
-        .expect("taped frame");
-    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    let (probe, grads) = probed_frame(&mut w, &mut rng);
     let analytic = grads.effects.floor_friction;
     assert!(
         analytic != 0.0,
@@ -495,15 +491,10 @@ fn issue6_frame_adjoint_of_floor_friction_matches_finite_differences() {
 #[test]
 fn frame_adjoint_of_the_hand_anchors_matches_finite_differences() {
     let mut w = world();
-    let n = w.particle_count();
     let start = w.state();
     let to = anchors_to();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let probe = position_velocity_probe(&mut rng, n);
-    let tape = w
-        .step_frame_taped(&FROM, &to, &[true, true], usize::MAX)
-        .expect("taped frame");
-    let grads = w.backward_frame(&tape, &probe).expect("backward");
+    let (probe, grads) = probed_frame(&mut w, &mut rng);
     assert_eq!(grads.anchors_from.len(), 2);
     let direction: Vec<[f64; 3]> = (0..2)
         .map(|_| [0, 1, 2].map(|_| 0.01 * (2.0 * rng.random::<f64>() - 1.0)))

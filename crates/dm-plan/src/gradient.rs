@@ -115,7 +115,13 @@ pub fn refine(
     for iteration in 0..=options.iterations {
         let current = plan.with_params(&params);
         let (value, grad) =
-            cost_and_gradient(model, start, &current, cost, weights, options.window)?;
+            match cost_and_gradient(model, start, &current, cost, weights, options.window) {
+                Ok(result) => result,
+                // A step into a diverging plan ends the refinement; the best
+                // iterate so far stands.
+                Err(PlanError::Simulation(_)) if iteration > 0 => break,
+                Err(other) => return Err(other),
+            };
         history.push(value);
         if value < best.0 {
             best = (value, params.clone());

@@ -88,6 +88,12 @@ pub fn mppi(
             costs.push(c);
         }
         let lowest = costs.iter().copied().fold(f64::INFINITY, f64::min);
+        if !lowest.is_finite() {
+            // Every sample diverged: keep the mean, try again.
+            history.push(best_cost);
+            progress(iteration + 1, best_cost);
+            continue;
+        }
         let mut sorted = costs.clone();
         sorted.sort_by(f64::total_cmp);
         let spread = (sorted[sorted.len() / 2] - lowest).max(1e-12);

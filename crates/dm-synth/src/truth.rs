@@ -386,19 +386,19 @@ struct TruthSetup {
     world: World<f32>,
     physics: PhysicsConfig,
     effect_extra: BTreeMap<String, serde_json::Value>,
+    cloud: ParticleCloud,
+    material: TruthMaterialFields,
 }
 
 /// The truth world of `config` (material, hidden effect, grip) in a domain
 /// around the object, the hands' `anchor_frames` and `extra_points`.
 fn truth_setup(
     config: &SynthConfig,
-    cloud: &ParticleCloud,
-    youngs: &[f64],
-    poisson: &[f64],
-    weights: &[[f64; 3]],
     anchor_frames: &[Vec<[f64; 3]>],
     extra_points: &[[f64; 3]],
 ) -> Result<TruthSetup, SynthError> {
+    let cloud = truth_cloud(config);
+    let material = truth_material(config, &cloud);
     let mut physics = truth_physics(
         config.preset,
         anchor_frames.iter().flatten().chain(extra_points),
@@ -444,13 +444,16 @@ fn truth_setup(
         )),
         _ => None,
     };
-    let material = ParticleMaterial::<f32>::from_fields(youngs, poisson, weights);
     let grip = TRUTH_GRIP;
     let mut world = World::new(
         physics.clone(),
         &cloud.positions,
         cloud.particle_volume(),
-        material,
+        ParticleMaterial::<f32>::from_fields(
+            &material.youngs,
+            &material.poisson,
+            &material.expert_weights,
+        ),
         grip,
     )?;
     if let Some(factors) = &density_factors {
@@ -461,6 +464,8 @@ fn truth_setup(
         world,
         physics,
         effect_extra,
+        cloud,
+        material,
     })
 }
 
@@ -476,23 +481,8 @@ pub fn plant_world(truth: &TruthFile, extra_points: &[[f64; 3]]) -> Result<World
         });
     }
     let config = &truth.config;
-    let cloud = truth_cloud(config);
-    let TruthMaterialFields {
-        youngs,
-        poisson,
-        expert_weights: weights,
-        ..
-    } = truth_material(config, &cloud);
     let anchor_frames = hand_anchor_frames(&truth.hands, config.frames, 0.0);
-    let TruthSetup { mut world, .. } = truth_setup(
-        config,
-        &cloud,
-        &youngs,
-        &poisson,
-        &weights,
-        &anchor_frames,
-        extra_points,
-    )?;
+    let TruthSetup { mut world, .. } = truth_setup(config, &anchor_frames, extra_points)?;
     let idle = vec![false; anchor_frames[0].len()];
     for _ in 0..SETTLE_FRAMES {
         world.step_frame(&anchor_frames[0], &anchor_frames[0], &idle)?;
@@ -509,28 +499,20 @@ pub fn simulate_truth(
     let action = config.resolved_action();
     let duration = config.frames as f64 / FPS;
     let hands = plan(preset, action, config.two_hands, duration);
-    let cloud = truth_cloud(config);
-    let TruthMaterialFields {
-        youngs,
-        poisson,
-        expert_weights: weights,
-        inclusion,
-    } = truth_material(config, &cloud);
-
     let anchor_frames = hand_anchor_frames(&hands, config.frames, 0.0);
     let TruthSetup {
         mut world,
         physics,
         effect_extra,
-    } = truth_setup(
-        config,
-        &cloud,
-        &youngs,
-        &poisson,
-        &weights,
-        &anchor_frames,
-        &[],
-    )?;
+        cloud,
+        material:
+            TruthMaterialFields {
+                youngs,
+                poisson,
+                inclusion,
+                ..
+            },
+    } = truth_setup(config, &anchor_frames, &[])?;
     let total = SETTLE_FRAMES + config.frames;
     let idle = vec![false; anchor_frames[0].len()];
     for s in 0..SETTLE_FRAMES {

@@ -1,6 +1,8 @@
 //! `dm-plan`: hand motions that bring an object to a goal, planned with
 //! its fitted world model and carried out in the model or a truth world.
 
+use std::io::IsTerminal;
+
 use anyhow::{Context, Result};
 use clap::Parser;
 use dm_plan::run::{PlanOptions, plan, write_outputs};
@@ -8,15 +10,28 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 fn main() -> Result<()> {
     let options = PlanOptions::parse();
-    let bar = ProgressBar::new(1);
+    // A bar on a terminal; in a log, a line per search step.
+    let terminal = std::io::stderr().is_terminal();
+    let bar = if terminal {
+        ProgressBar::new(1)
+    } else {
+        ProgressBar::hidden()
+    };
     bar.set_style(
         ProgressStyle::with_template("{msg:>9} [{bar:40}] {pos}/{len} {elapsed}")?
             .progress_chars("=> "),
     );
+    let clock = std::time::Instant::now();
     let result = plan(&options, &mut |stage, done, total| {
         bar.set_message(stage.to_string());
         bar.set_length(total as u64);
         bar.set_position(done as u64);
+        if !terminal && (stage != "execute" || done == total) {
+            eprintln!(
+                "dm-plan: {stage} {done}/{total} ({:.0} s)",
+                clock.elapsed().as_secs_f64()
+            );
+        }
     })
     .context("planning (nothing was written)")?;
     bar.finish_and_clear();

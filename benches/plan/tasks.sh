@@ -28,6 +28,7 @@ for spec in $TASKS; do
   for model in fitted untrained; do
     dir="$OUT/tasks/$name-$goal/$model"
     [ -f "$dir/plan.json" ] && continue
+    mkdir -p "$(dirname "$dir")"
     "$BIN/dm-plan" "$OUT/$name/model" --bundle "$OUT/$name/scene" --goal "$goal" \
       --plant "$OUT/$name/truth.json" --out "$dir" $PLAN $([ "$model" = untrained ] && echo --untrained) \
       > "$dir.log" 2>&1 || { mkdir -p "$dir"; echo "failed: see $dir.log"; }

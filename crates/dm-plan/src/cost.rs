@@ -53,10 +53,37 @@ pub struct TerminalCost {
 /// The distances of a final state to the goal, metres.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Scores {
-    /// One-directional L1 Chamfer from the goal to the surface particles.
-    pub chamfer_m: f64,
-    /// Mean distance of corresponding particles to their goal points.
-    pub track_m: Option<f64>,
+    /// One-directional L1 Chamfer from the goal to the surface particles
+    /// (the metrics' Chamfer term).
+    pub final_chamfer_m: f64,
+    /// The mean of both directions (goal → surface, surface → goal), L1:
+    /// also low only when no part of the object is away from the goal.
+    pub final_symmetric_chamfer_m: f64,
+    /// Mean distance of corresponding particles to their goal points (goals
+    /// with correspondences).
+    pub final_track_m: Option<f64>,
+}
+
+/// The scores of `surface` (the object's surface particles) and of the
+/// particles `corresponding[k]` of `positions`, the k-th goal point's.
+pub fn scores(
+    goal: &[[f64; 3]],
+    surface: &[[f64; 3]],
+    positions: &[[f64; 3]],
+    corresponding: Option<&[usize]>,
+) -> Scores {
+    let to_surface = chamfer_to(surface, goal);
+    Scores {
+        final_chamfer_m: to_surface,
+        final_symmetric_chamfer_m: 0.5 * (to_surface + chamfer_to(goal, surface)),
+        final_track_m: corresponding.map(|ids| {
+            goal.iter()
+                .zip(ids)
+                .map(|(g, &p)| norm2(sub(positions[p], *g)).sqrt())
+                .sum::<f64>()
+                / ids.len().max(1) as f64
+        }),
+    }
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -128,20 +155,15 @@ impl TerminalCost {
         (value, grad)
     }
 
-    /// The metrics' distances of a final state to the goal.
+    /// The distances of a final state of the planning world to the goal.
     pub fn scores(&self, positions: &[[f64; 3]]) -> Scores {
         let surface = &positions[..self.surface_count.min(positions.len())];
-        Scores {
-            chamfer_m: chamfer_to(surface, &self.goal),
-            track_m: self.goal_particles.as_ref().map(|particles| {
-                self.goal
-                    .iter()
-                    .zip(particles)
-                    .map(|(g, &p)| norm2(sub(positions[p], *g)).sqrt())
-                    .sum::<f64>()
-                    / particles.len().max(1) as f64
-            }),
-        }
+        scores(
+            &self.goal,
+            surface,
+            positions,
+            self.goal_particles.as_deref(),
+        )
     }
 }
 

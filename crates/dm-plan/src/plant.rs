@@ -24,8 +24,11 @@ pub enum Plant {
         simulation: Box<Simulation>,
         surface_count: usize,
     },
-    /// dm-synth's truth world.
-    Truth { world: Box<World<f32>> },
+    /// dm-synth's truth world, and which of its particles are on the surface.
+    Truth {
+        world: Box<World<f32>>,
+        surface: Vec<bool>,
+    },
 }
 
 impl Plant {
@@ -36,16 +39,17 @@ impl Plant {
         })
     }
 
-    pub fn truth(world: World<f32>) -> Self {
+    pub fn truth(world: World<f32>, surface: Vec<bool>) -> Self {
         Plant::Truth {
             world: Box::new(world),
+            surface,
         }
     }
 
     fn world(&self) -> &World<f32> {
         match self {
             Plant::Model { simulation, .. } => simulation.world(),
-            Plant::Truth { world } => world,
+            Plant::Truth { world, .. } => world,
         }
     }
 
@@ -57,14 +61,17 @@ impl Plant {
         self.world().state()
     }
 
-    /// The particles a goal is compared with: the model's surface ones, or
-    /// every truth particle (the nearest to a goal point on the surface is
-    /// a surface particle).
+    /// The surface particles, which a goal is compared with.
     pub fn outline(&self) -> Vec<[f64; 3]> {
         let positions = self.positions();
         match self {
             Plant::Model { surface_count, .. } => positions[..*surface_count].to_vec(),
-            Plant::Truth { .. } => positions,
+            Plant::Truth { surface, .. } => positions
+                .iter()
+                .zip(surface)
+                .filter(|(_, s)| **s)
+                .map(|(p, _)| *p)
+                .collect(),
         }
     }
 
@@ -101,7 +108,7 @@ impl Plant {
         let grasp = vec![first; a.len()];
         match self {
             Plant::Model { simulation, .. } => simulation.step(&a, &b, &grasp)?,
-            Plant::Truth { world } => world.step_frame(&a, &b, &grasp)?,
+            Plant::Truth { world, .. } => world.step_frame(&a, &b, &grasp)?,
         }
         Ok(())
     }

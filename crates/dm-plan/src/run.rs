@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use dm_bundle::{Bundle, write_json_atomic, write_npy_file};
-use dm_model::metrics::{chamfer_to, match_tracks};
+use dm_model::metrics::match_tracks;
 use dm_model::{ModelOptions, WorldModel};
 use dm_mpm::state::Particles;
 use dm_play::PlayOptions;
@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::PlanError;
 use crate::actions::{ActionPlan, Workspace};
-use crate::cost::{CostWeights, Scores, TerminalCost};
+use crate::cost::{CostWeights, Scores, TerminalCost, scores};
 use crate::goal::Goal;
 use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
@@ -119,25 +119,18 @@ pub struct PlanOptions {
     pub seed: u64,
 }
 
-/// The distances of a rollout's last frame to the goal.
-#[derive(Clone, Debug, Serialize)]
-pub struct Outcome {
-    pub final_chamfer_m: f64,
-    pub final_track_m: Option<f64>,
-}
-
 /// `plan.json` (keys documented in docs/plan.md).
 #[derive(Clone, Debug, Serialize)]
 pub struct PlanRecord {
     pub options: PlanOptions,
     pub goal: GoalRecord,
     /// The plan's last frame in the planning world.
-    pub planned: Outcome,
+    pub planned: Scores,
     /// The last frame carried out in the plant.
-    pub executed: Outcome,
+    pub executed: Scores,
     pub plant: String,
     /// The untouched object's distance to the goal (nothing done).
-    pub start: Outcome,
+    pub start: Scores,
     pub rollouts: usize,
     pub seconds: f64,
     pub replans: usize,
@@ -512,13 +505,6 @@ fn shifted(plan: &ActionPlan, t: usize) -> ActionPlan {
     out
 }
 
-fn outcome(scores: Scores) -> Outcome {
-    Outcome {
-        final_chamfer_m: scores.chamfer_m,
-        final_track_m: scores.track_m,
-    }
-}
-
 /// What `run` returns besides the files.
 #[derive(Debug)]
 pub struct RunResult {
@@ -616,7 +602,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
 
     let mut planning_world = planning.world::<f32>()?;
     let planned = rollout(&mut planning_world, &plan, true)?;
-    let planned_outcome = outcome(cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[])));
+    let planned_outcome = cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[]));
 
     // The plant, and the planning world tracking it (its prediction of the
     // state between observations).
@@ -624,8 +610,9 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         Some(path) => {
             let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
             let extra = [workspace.lo, workspace.hi];
+            let (world, surface) = dm_synth::plant_world(&truth, &extra)?;
             (
-                Plant::truth(dm_synth::plant_world(&truth, &extra)?),
+                Plant::truth(world, surface),
                 format!("truth:{}", path.display()),
             )
         }
@@ -637,10 +624,26 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         .iter()
         .map(|p| plant_index.nearest(p, 1).first().map_or(0, |n| n.0))
         .collect();
-    let start_outcome = Outcome {
-        final_chamfer_m: chamfer_to(&plant.outline(), &goal.points),
-        final_track_m: None,
+    // The plant particle each goal point's model particle starts nearest to.
+    let plant_correspondences: Option<Vec<usize>> = goal.particles.as_ref().map(|ids| {
+        ids.iter()
+            .map(|&i| {
+                plant_index
+                    .nearest(&model.particles[i], 1)
+                    .first()
+                    .map_or(0, |n| n.0)
+            })
+            .collect()
+    });
+    let plant_scores = |plant: &Plant| {
+        scores(
+            &goal.points,
+            &plant.outline(),
+            &plant.positions(),
+            plant_correspondences.as_deref(),
+        )
     };
+    let start_outcome = plant_scores(&plant);
     let mut tracker = planning.world::<f32>()?;
     let mut executed = vec![plant.positions()];
     let mut hands = vec![plan.anchors(0)];
@@ -695,17 +698,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             replans += 1;
         }
     }
-    let executed_outcome = {
-        let last = executed.last().cloned().unwrap_or_default();
-        let outline = match &plant {
-            Plant::Model { surface_count, .. } => last[..*surface_count].to_vec(),
-            Plant::Truth { .. } => last,
-        };
-        Outcome {
-            final_chamfer_m: chamfer_to(&outline, &goal.points),
-            final_track_m: None,
-        }
-    };
+    let executed_outcome = plant_scores(&plant);
     let record = PlanRecord {
         options: options.clone(),
         goal: GoalRecord {

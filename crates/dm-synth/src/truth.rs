@@ -473,7 +473,11 @@ fn truth_setup(
 /// object settled, no hand holding it), in a domain that also holds
 /// `extra_points`: a world the scene's model did not fit, to carry other
 /// hand motions out in (dm-plan's plant). Its hands are the caller's.
-pub fn plant_world(truth: &TruthFile, extra_points: &[[f64; 3]]) -> Result<World<f32>, SynthError> {
+/// Also which of its particles are surface particles.
+pub fn plant_world(
+    truth: &TruthFile,
+    extra_points: &[[f64; 3]],
+) -> Result<(World<f32>, Vec<bool>), SynthError> {
     if truth.engine.is_some() {
         return Err(SynthError::InvalidOption {
             option: "engine".into(),
@@ -482,12 +486,14 @@ pub fn plant_world(truth: &TruthFile, extra_points: &[[f64; 3]]) -> Result<World
     }
     let config = &truth.config;
     let anchor_frames = hand_anchor_frames(&truth.hands, config.frames, 0.0);
-    let TruthSetup { mut world, .. } = truth_setup(config, &anchor_frames, extra_points)?;
+    let TruthSetup {
+        mut world, cloud, ..
+    } = truth_setup(config, &anchor_frames, extra_points)?;
     let idle = vec![false; anchor_frames[0].len()];
     for _ in 0..SETTLE_FRAMES {
         world.step_frame(&anchor_frames[0], &anchor_frames[0], &idle)?;
     }
-    Ok(world)
+    Ok((world, cloud.on_surface))
 }
 
 /// Runs the truth simulation for `config`.
@@ -554,7 +560,8 @@ mod tests {
     fn a_plant_world_starts_at_the_clips_first_frame() {
         let config = SynthConfig::tiny(Preset::Rope, 3);
         let truth = simulate_truth(&config, &mut |_, _, _| {}).expect("truth");
-        let world = plant_world(&truth.truth_file(&config), &[]).expect("plant");
+        let (world, surface) = plant_world(&truth.truth_file(&config), &[]).expect("plant");
+        assert_eq!(surface.len(), world.particle_count());
         let start: Vec<[f32; 3]> = world
             .positions()
             .iter()

@@ -62,10 +62,11 @@ fn main() -> Result<()> {
         r.plant,
         1e3 * r.executed.final_chamfer_m
     );
-    println!(
-        "  {}/plan.json, {}/video/",
-        options.out.display(),
-        options.out.display()
-    );
+    let video = if options.no_video {
+        ""
+    } else {
+        ", video/render.mp4"
+    };
+    println!("  {}: plan.json{video}", options.out.display());
     Ok(())
 }

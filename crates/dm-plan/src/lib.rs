@@ -13,8 +13,11 @@ pub mod cost;
 pub mod goal;
 pub mod gradient;
 pub mod mppi;
+pub mod options;
+pub mod output;
 pub mod plant;
 pub mod run;
+mod search;
 pub mod video;
 pub mod world;
 
@@ -37,4 +40,12 @@ pub enum PlanError {
     InvalidOption { option: String, problem: String },
     #[error("{path}: {problem}")]
     File { path: PathBuf, problem: String },
+}
+
+/// An `InvalidOption` error.
+pub(crate) fn invalid(option: &str, problem: impl Into<String>) -> PlanError {
+    PlanError::InvalidOption {
+        option: option.into(),
+        problem: problem.into(),
+    }
 }

@@ -3,121 +3,27 @@
 //! or re-planned from observations, and everything written to the output
 //! directory.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
-use dm_bundle::{Bundle, write_json_atomic, write_npy_file};
+use dm_bundle::Bundle;
 use dm_model::metrics::match_tracks;
 use dm_model::{ModelOptions, WorldModel};
-use dm_mpm::state::Particles;
 use dm_play::PlayOptions;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::PlanError;
 use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, Scores, TerminalCost, scores};
 use crate::goal::Goal;
-use crate::gradient::{GradientOptions, refine};
-use crate::mppi::{MppiOptions, mppi};
+pub use crate::options::{Optimizer, PlanOptions};
+pub use crate::output::write_outputs;
 use crate::plant::Plant;
+use crate::search::{Search, shifted};
 use crate::world::{PlanningModel, rollout};
-
-/// Which optimiser searches the knots.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Optimizer {
-    /// Sampling only (MPPI).
-    Mppi,
-    /// Adam through the simulator's adjoint only.
-    Gradient,
-    /// MPPI, then gradient refinement of its best plan.
-    MppiGradient,
-}
-
-/// `dm-plan`'s options, saved as the run record in plan.json.
-#[derive(Clone, Debug, Serialize, clap::Parser)]
-#[command(
-    name = "dm-plan",
-    about = "Plan hand motions that bring an object to a goal with its fitted world model, and carry them out"
-)]
-pub struct PlanOptions {
-    /// Model directory (dm-fit's output).
-    pub model_dir: PathBuf,
-    /// The scene bundle the model was fitted on (first-frame hands, cameras, goal frames).
-    #[arg(long)]
-    pub bundle: PathBuf,
-    /// The goal: `frame:T` (the bundle's tracked points at frame T), a binary PLY point cloud, or a name (rope: straighten, u-shape, move; cloth: fold, flatten, move; toy: place, squash, rotate).
-    #[arg(long)]
-    pub goal: String,
-    /// Output directory.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// dm-synth's truth file of the scene: carry the plan out in that truth world (hidden effects included) instead of the fitted model.
-    #[arg(long)]
-    pub plant: Option<PathBuf>,
-    /// Search: MPPI, gradient refinement through the simulator, or both in turn.
-    #[arg(long, value_enum, default_value_t = Optimizer::MppiGradient)]
-    pub optimizer: Optimizer,
-    /// Frames the plan spans.
-    #[arg(long, default_value_t = 120)]
-    pub horizon: usize,
-    /// Knots per hand.
-    #[arg(long, default_value_t = 4)]
-    pub knots: usize,
-    /// Hands (grasp points chosen where the goal moves the object most).
-    #[arg(long, default_value_t = 2)]
-    pub hands: usize,
-    /// MPPI samples per iteration.
-    #[arg(long, default_value_t = 20)]
-    pub samples: usize,
-    /// MPPI iterations.
-    #[arg(long, default_value_t = 10)]
-    pub iterations: usize,
-    /// MPPI knot noise, metres.
-    #[arg(long, default_value_t = 0.02)]
-    pub noise_m: f64,
-    /// Gradient refinement steps.
-    #[arg(long, default_value_t = 20)]
-    pub gradient_iters: usize,
-    /// Gradient refinement step (Adam), metres.
-    #[arg(long, default_value_t = 0.004)]
-    pub learning_rate_m: f64,
-    /// Substeps per frame differentiated exactly in the refinement.
-    #[arg(long, default_value_t = 8)]
-    pub window: usize,
-    /// Re-plan from the observed state every N frames (0: open loop).
-    #[arg(long, default_value_t = 0)]
-    pub replan_every: usize,
-    /// MPPI iterations (and refinement steps) of each re-plan.
-    #[arg(long, default_value_t = 3)]
-    pub replan_iterations: usize,
-    /// Noise of the observed positions re-planning starts from, millimetres.
-    #[arg(long, default_value_t = 1.5)]
-    pub observation_noise_mm: f64,
-    /// Fastest hand speed before the cost penalises it, m/s.
-    #[arg(long, default_value_t = 0.5)]
-    pub max_speed: f64,
-    /// How far the hands may move beyond the object's first-frame box, metres.
-    #[arg(long, default_value_t = 0.2)]
-    pub workspace_margin_m: f64,
-    /// Plan in the model's own particles, grid and substeps (slower) instead of the playground's coarse simulation.
-    #[arg(long)]
-    pub exact: bool,
-    /// Plan with the untrained model of the bundle instead of MODEL_DIR's (for comparison).
-    #[arg(long)]
-    pub untrained: bool,
-    /// Bundle camera of the video.
-    #[arg(long, default_value_t = 0)]
-    pub camera: usize,
-    /// Write the frames but no MP4.
-    #[arg(long)]
-    pub no_video: bool,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-}
+use crate::{PlanError, invalid};
 
 /// `plan.json` (keys documented in docs/plan.md).
 #[derive(Clone, Debug, Serialize)]
@@ -162,62 +68,6 @@ pub struct PlanningWorldRecord {
 
 /// Progress: (stage, done, total).
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
-
-fn invalid(option: &str, problem: impl Into<String>) -> PlanError {
-    PlanError::InvalidOption {
-        option: option.into(),
-        problem: problem.into(),
-    }
-}
-
-impl PlanOptions {
-    fn validate(&self) -> Result<(), PlanError> {
-        let checks: [(&str, bool, &str); 9] = [
-            ("--horizon", self.horizon >= 2, "needs at least 2 frames"),
-            (
-                "--knots",
-                self.knots >= 1 && self.knots <= self.horizon,
-                "needs 1 to HORIZON knots",
-            ),
-            (
-                "--hands",
-                (1..=4).contains(&self.hands),
-                "needs 1 to 4 hands",
-            ),
-            ("--samples", self.samples >= 2, "needs at least 2 samples"),
-            (
-                "--noise-m",
-                self.noise_m.is_finite() && self.noise_m > 0.0,
-                "needs a positive noise",
-            ),
-            (
-                "--learning-rate-m",
-                self.learning_rate_m.is_finite() && self.learning_rate_m > 0.0,
-                "needs a positive step",
-            ),
-            ("--window", self.window >= 1, "needs at least 1 substep"),
-            (
-                "--max-speed",
-                self.max_speed.is_finite() && self.max_speed > 0.0,
-                "needs a positive speed",
-            ),
-            (
-                "--observation-noise-mm",
-                self.observation_noise_mm.is_finite() && self.observation_noise_mm >= 0.0,
-                "needs a noise ≥ 0",
-            ),
-        ];
-        for (option, ok, problem) in checks {
-            if !ok {
-                return Err(invalid(option, problem));
-            }
-        }
-        if !(self.workspace_margin_m.is_finite() && self.workspace_margin_m >= 0.0) {
-            return Err(invalid("--workspace-margin-m", "needs a margin ≥ 0"));
-        }
-        Ok(())
-    }
-}
 
 /// The scene's up axis and floor height.
 fn up_and_floor(bundle: &Bundle) -> ([f64; 3], f64) {
@@ -380,129 +230,6 @@ fn initial_plan(
         }
     }
     plan
-}
-
-struct Search<'a> {
-    options: &'a PlanOptions,
-    planning: &'a PlanningModel,
-    cost: &'a TerminalCost,
-    weights: CostWeights,
-    workspace: Workspace,
-    rollouts: usize,
-    history: History,
-}
-
-impl Search<'_> {
-    /// The cost of a plan rolled out from `start` (the first frame when None).
-    fn evaluate(
-        &mut self,
-        plan: &ActionPlan,
-        start: Option<&Particles<f32>>,
-    ) -> Result<f64, PlanError> {
-        let mut world = self.planning.world::<f32>()?;
-        if let Some(state) = start {
-            world.set_state(state)?;
-        }
-        self.rollouts += 1;
-        match rollout(&mut world, plan, true) {
-            Ok(frames) => {
-                let last = frames.last().map(Vec::as_slice).unwrap_or(&[]);
-                let (value, _) = self.cost.value_and_gradient(last);
-                let (penalty, _) =
-                    crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
-                Ok(value + penalty)
-            }
-            // A sample that diverges is a bad sample, not a failed search.
-            Err(PlanError::Simulation(_)) => Ok(f64::INFINITY),
-            Err(other) => Err(other),
-        }
-    }
-
-    /// Searches from `plan` with `iterations` MPPI iterations and
-    /// `gradient_iters` refinement steps (as the optimiser allows).
-    fn search(
-        &mut self,
-        plan: &ActionPlan,
-        start: Option<&Particles<f32>>,
-        iterations: usize,
-        gradient_iters: usize,
-        seed: u64,
-        progress: Progress<'_>,
-    ) -> Result<ActionPlan, PlanError> {
-        let mut best = plan.clone();
-        best.project(&self.workspace);
-        let o = self.options;
-        if o.optimizer != Optimizer::Gradient && iterations > 0 {
-            let mppi_options = MppiOptions {
-                samples: o.samples,
-                iterations,
-                noise_m: o.noise_m,
-                seed,
-                ..MppiOptions::default()
-            };
-            let template = best.clone();
-            let workspace = self.workspace;
-            let project = move |params: &mut Vec<f64>| {
-                let mut p = template.with_params(params);
-                p.project(&workspace);
-                *params = p.params();
-            };
-            let template = best.clone();
-            let result = mppi(
-                &mut |params| self.evaluate(&template.with_params(params), start),
-                &best.params(),
-                &project,
-                &mppi_options,
-                &mut |i, _| progress("MPPI", i, iterations),
-            )?;
-            self.history.mppi.extend(&result.history);
-            best = best.with_params(&result.best);
-        }
-        if o.optimizer != Optimizer::Mppi && gradient_iters > 0 {
-            let gradient_options = GradientOptions {
-                iterations: gradient_iters,
-                learning_rate_m: o.learning_rate_m,
-                window: o.window,
-            };
-            let refined = refine(
-                self.planning,
-                start,
-                &best,
-                self.cost,
-                &self.weights,
-                &self.workspace,
-                &gradient_options,
-                &mut |i, _| progress("gradient", i, gradient_iters),
-            )?;
-            self.rollouts += refined.rollouts;
-            self.history.gradient.extend(&refined.history);
-            best = best.with_params(&refined.best);
-        }
-        Ok(best)
-    }
-}
-
-/// The rest of `plan` from frame `t`, with the hands where they are then
-/// and its knots where the plan had them (as many, spread over what is left).
-fn shifted(plan: &ActionPlan, t: usize) -> ActionPlan {
-    let remaining = plan.horizon - t;
-    let now = plan.anchors(t);
-    let k = plan.knot_count();
-    let mut out = ActionPlan::at_rest(&now, k, remaining);
-    for (h, hand) in out.hands.iter_mut().enumerate() {
-        for (j, knot) in hand.knots.iter_mut().enumerate() {
-            let frame = t as f64 + remaining as f64 * (j + 1) as f64 / k as f64;
-            let weights = plan.knot_weights(frame);
-            let mut p = plan.hands[h].grasp;
-            for &(i, w) in &weights {
-                for a in 0..3 {
-                    p[a] += w * plan.hands[h].knots[i][a];
-                }
-            }
-            *knot = std::array::from_fn(|a| p[a] - now[h][a]);
-        }
-    }
-    out
 }
 
 /// What `run` returns besides the files.
@@ -731,38 +458,4 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         splat_radius: model.splat_radius(),
         frame_dt: planning.frame_dt(),
     })
-}
-
-fn frames_array(frames: &[Vec<[f64; 3]>]) -> ndarray::Array3<f32> {
-    let n = frames.first().map_or(0, Vec::len);
-    ndarray::Array3::from_shape_fn((frames.len(), n, 3), |(t, i, a)| frames[t][i][a] as f32)
-}
-
-/// Writes actions.json/.npy, planned.npy, executed.npy, goal.npy and
-/// plan.json into `out` (each atomically; plan.json last).
-pub fn write_outputs(out: &Path, result: &RunResult) -> Result<(), PlanError> {
-    std::fs::create_dir_all(out).map_err(|e| PlanError::File {
-        path: out.to_path_buf(),
-        problem: format!("creating the directory: {e}"),
-    })?;
-    let hands = &result.hands;
-    let h = hands.first().map_or(0, Vec::len);
-    let actions = ndarray::Array3::from_shape_fn((hands.len(), h, 3), |(t, i, a)| hands[t][i][a]);
-    write_npy_file(&out.join("actions.npy"), &actions)?;
-    write_json_atomic(
-        &out.join("actions.json"),
-        &serde_json::json!({
-            "frame_dt_s": result.frame_dt,
-            "hands_per_frame": hands,
-            "plan": result.record.actions,
-        }),
-    )?;
-    write_npy_file(&out.join("planned.npy"), &frames_array(&result.planned))?;
-    write_npy_file(&out.join("executed.npy"), &frames_array(&result.executed))?;
-    write_npy_file(
-        &out.join("goal.npy"),
-        &frames_array(std::slice::from_ref(&result.goal.points)),
-    )?;
-    write_json_atomic(&out.join("plan.json"), &result.record)?;
-    Ok(())
 }

@@ -1,0 +1,137 @@
+//! The search of one plan: MPPI and the gradient refinement in turn, as
+//! the options ask, from the first frame or from an observed state.
+
+use dm_mpm::state::Particles;
+
+use crate::PlanError;
+use crate::actions::{ActionPlan, Workspace};
+use crate::cost::{CostWeights, TerminalCost};
+use crate::gradient::{GradientOptions, refine};
+use crate::mppi::{MppiOptions, mppi};
+use crate::options::{Optimizer, PlanOptions};
+use crate::run::{History, Progress};
+use crate::world::{PlanningModel, rollout};
+
+/// The rollouts and cost histories of a run's searches.
+pub(crate) struct Search<'a> {
+    pub(crate) options: &'a PlanOptions,
+    pub(crate) planning: &'a PlanningModel,
+    pub(crate) cost: &'a TerminalCost,
+    pub(crate) weights: CostWeights,
+    pub(crate) workspace: Workspace,
+    pub(crate) rollouts: usize,
+    pub(crate) history: History,
+}
+
+impl Search<'_> {
+    /// The cost of a plan rolled out from `start` (the first frame when None).
+    fn evaluate(
+        &mut self,
+        plan: &ActionPlan,
+        start: Option<&Particles<f32>>,
+    ) -> Result<f64, PlanError> {
+        let mut world = self.planning.world::<f32>()?;
+        if let Some(state) = start {
+            world.set_state(state)?;
+        }
+        self.rollouts += 1;
+        match rollout(&mut world, plan, true) {
+            Ok(frames) => {
+                let last = frames.last().map(Vec::as_slice).unwrap_or(&[]);
+                let (value, _) = self.cost.value_and_gradient(last);
+                let (penalty, _) =
+                    crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
+                Ok(value + penalty)
+            }
+            // A sample that diverges is a bad sample, not a failed search.
+            Err(PlanError::Simulation(_)) => Ok(f64::INFINITY),
+            Err(other) => Err(other),
+        }
+    }
+
+    /// Searches from `plan` with `iterations` MPPI iterations and
+    /// `gradient_iters` refinement steps (as the optimiser allows).
+    pub(crate) fn search(
+        &mut self,
+        plan: &ActionPlan,
+        start: Option<&Particles<f32>>,
+        iterations: usize,
+        gradient_iters: usize,
+        seed: u64,
+        progress: Progress<'_>,
+    ) -> Result<ActionPlan, PlanError> {
+        let mut best = plan.clone();
+        best.project(&self.workspace);
+        let o = self.options;
+        if o.optimizer != Optimizer::Gradient && iterations > 0 {
+            let mppi_options = MppiOptions {
+                samples: o.samples,
+                iterations,
+                noise_m: o.noise_m,
+                seed,
+                ..MppiOptions::default()
+            };
+            let template = best.clone();
+            let workspace = self.workspace;
+            let project = move |params: &mut Vec<f64>| {
+                let mut p = template.with_params(params);
+                p.project(&workspace);
+                *params = p.params();
+            };
+            let template = best.clone();
+            let result = mppi(
+                &mut |params| self.evaluate(&template.with_params(params), start),
+                &best.params(),
+                &project,
+                &mppi_options,
+                &mut |i, _| progress("MPPI", i, iterations),
+            )?;
+            self.history.mppi.extend(&result.history);
+            best = best.with_params(&result.best);
+        }
+        if o.optimizer != Optimizer::Mppi && gradient_iters > 0 {
+            let gradient_options = GradientOptions {
+                iterations: gradient_iters,
+                learning_rate_m: o.learning_rate_m,
+                window: o.window,
+            };
+            let refined = refine(
+                self.planning,
+                start,
+                &best,
+                self.cost,
+                &self.weights,
+                &self.workspace,
+                &gradient_options,
+                &mut |i, _| progress("gradient", i, gradient_iters),
+            )?;
+            self.rollouts += refined.rollouts;
+            self.history.gradient.extend(&refined.history);
+            best = best.with_params(&refined.best);
+        }
+        Ok(best)
+    }
+}
+
+/// The rest of `plan` from frame `t`, with the hands where they are then
+/// and its knots where the plan had them (as many, spread over what is left).
+pub(crate) fn shifted(plan: &ActionPlan, t: usize) -> ActionPlan {
+    let remaining = plan.horizon - t;
+    let now = plan.anchors(t);
+    let k = plan.knot_count();
+    let mut out = ActionPlan::at_rest(&now, k, remaining);
+    for (h, hand) in out.hands.iter_mut().enumerate() {
+        for (j, knot) in hand.knots.iter_mut().enumerate() {
+            let frame = t as f64 + remaining as f64 * (j + 1) as f64 / k as f64;
+            let weights = plan.knot_weights(frame);
+            let mut p = plan.hands[h].grasp;
+            for &(i, w) in &weights {
+                for a in 0..3 {
+                    p[a] += w * plan.hands[h].knots[i][a];
+                }
+            }
+            *knot = std::array::from_fn(|a| p[a] - now[h][a]);
+        }
+    }
+    out
+}

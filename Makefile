@@ -48,6 +48,11 @@ DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iter
 # diagnosis, where the main 72-frame scene takes about 9 min to diagnose.
 DIAG_SCENE ?= --preset cloth --seed 1014 --action lift --effect ground_tilt:8 --frames 36 --width 48 --height 36 --truth-particles 3000 --tracks 120 --bundle-particles 1000
 DIAG_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 0
+# A short plan (docs/plan.md): the fitted object moved 15 cm sideways, 60
+# frames, a quarter of dm-plan's default search, carried out in the truth
+# world (about 45 s).
+DEMO_GOAL ?= $(if $(filter toy,$(PRESET)),place,move)
+DEMO_PLAN ?= --goal $(DEMO_GOAL) --horizon 60 --samples 10 --iterations 4 --gradient-iters 10
 
 demo: build
 	@rm -rf $(OUT) && mkdir -p $(OUT)
@@ -60,6 +65,7 @@ demo: build
 	./target/release/dm-synth $(DIAG_SCENE) --out $(OUT)/diag_scene --truth $(OUT)/diag_scene.truth.json
 	./target/release/dm-fit $(OUT)/diag_scene --out $(OUT)/diag_model $(DIAG_FIT)
 	./target/release/dm-diagnose $(OUT)/diag_model $(OUT)/diag_scene --out $(OUT)/diagnose --truth $(OUT)/diag_scene.truth.json
+	./target/release/dm-plan $(OUT)/model --bundle $(OUT)/scene --plant $(OUT)/scene.truth.json --out $(OUT)/plan $(DEMO_PLAN)
 	@echo
 	@echo "== DeformMaster demo summary =="
 	@echo "scene bundle : $(OUT)/scene   (truth kept outside: $(OUT)/scene.truth.json)"
@@ -70,6 +76,8 @@ demo: build
 	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
 	@echo "playground   : ./target/release/dm-play $(OUT)/model   (prints the URL to open)"
 	@python3 -c 'import json; d=json.load(open("$(OUT)/diagnose/diagnosis.json")); t=json.load(open("$(OUT)/diag_scene.truth.json")); e=t.get("effect") or {"name": "none"}; g=d["gain"]; print("diagnosis    : hidden %s -> named %s (confidence %.2f); held-out track %.1f -> %.1f mm; $(OUT)/diagnose/report.md" % (e["name"], d["cause"], d["confidence"], 1e3*g["track_before"], 1e3*g["track_after"]))' || true
+	@python3 -c 'import json; p=json.load(open("$(OUT)/plan/plan.json")); print("plan         : goal %s, Chamfer to it %.1f mm at the start -> %.1f planned -> %.1f mm carried out in the truth world (%.0f s); $(OUT)/plan/video/render.mp4" % (p["goal"]["name"], 1e3*p["start"]["final_chamfer_m"], 1e3*p["planned"]["final_chamfer_m"], 1e3*p["executed"]["final_chamfer_m"], p["seconds"]))' || true
+	@echo "python       : make python, then .venv-python/bin/python examples/python/rollout.py $(OUT)/model $(OUT)/scene"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 	@echo "               $(OUT)/diagnose/error_vs_time.png  $(OUT)/diagnose/candidates.png  $(OUT)/diagnose/error_map.png"
 

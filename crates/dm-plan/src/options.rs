@@ -96,6 +96,7 @@ pub struct PlanOptions {
     /// Write the frames but no MP4.
     #[arg(long)]
     pub no_video: bool,
+    /// Seed of MPPI's samples and of the observation noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }

@@ -290,6 +290,23 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             "no grasp point found: the goal has no correspondences and the bundle no hands",
         ));
     }
+    // The plant (built first: a plant that cannot be built should stop the
+    // run before the search).
+    let (mut plant, plant_name) = match &options.plant {
+        Some(path) => {
+            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
+            let extra = [workspace.lo, workspace.hi];
+            let (world, surface) = dm_synth::plant_world(&truth, &extra)?;
+            (
+                Plant::truth(world, surface),
+                format!("truth:{}", path.display()),
+            )
+        }
+        None => (
+            Plant::model(&model.with_domain_containing(&[workspace.lo, workspace.hi]))?,
+            "model".to_string(),
+        ),
+    };
     let weights = CostWeights {
         max_speed_m_s: options.max_speed,
         ..CostWeights::default()
@@ -331,20 +348,6 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     let planned = rollout(&mut planning_world, &plan, true)?;
     let planned_outcome = cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[]));
 
-    // The plant, and the planning world tracking it (its prediction of the
-    // state between observations).
-    let (mut plant, plant_name) = match &options.plant {
-        Some(path) => {
-            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
-            let extra = [workspace.lo, workspace.hi];
-            let (world, surface) = dm_synth::plant_world(&truth, &extra)?;
-            (
-                Plant::truth(world, surface),
-                format!("truth:{}", path.display()),
-            )
-        }
-        None => (Plant::model(&model)?, "model".to_string()),
-    };
     let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions());
     let observed_of: Vec<usize> = planning
         .particles()

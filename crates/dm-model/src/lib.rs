@@ -43,6 +43,19 @@ pub enum ExpertChoice {
     Nh,
 }
 
+impl ExpertChoice {
+    /// Makes `material` what this choice simulates: the fitted mixture, or
+    /// for the `nh` ablation every particle purely Neo-Hookean.
+    pub fn apply_to<T: dm_mpm::Real>(self, material: &mut ParticleMaterial<T>) {
+        if self == ExpertChoice::Nh {
+            material
+                .expert_weights
+                .iter_mut()
+                .for_each(|w| *w = [T::one(), T::zero(), T::zero()]);
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum ActuatorChoice {
@@ -316,14 +329,8 @@ impl WorldModel {
         m
     }
 
-    /// The `--experts nh` ablation: every particle purely Neo-Hookean.
     fn apply_expert_choice(&self, material: &mut ParticleMaterial<f32>) {
-        if self.options.experts == ExpertChoice::Nh {
-            material
-                .expert_weights
-                .iter_mut()
-                .for_each(|w| *w = [1.0, 0.0, 0.0]);
-        }
+        self.options.experts.apply_to(material);
     }
 
     /// Median Young's modulus (Pa) and Poisson ratio over particles.

@@ -11,8 +11,8 @@ use dm_mpm::state::Particles;
 
 use crate::PlanError;
 
-/// Radius of a truth hand's ring of anchors (dm-synth's fingertip ring).
-const TRUTH_RING_M: f64 = 0.012;
+use dm_synth::actions::GRIP_RING_RADIUS_M as TRUTH_RING_M;
+
 /// Anchors on the ring.
 const TRUTH_RING_ANCHORS: usize = 4;
 

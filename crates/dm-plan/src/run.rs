@@ -245,6 +245,8 @@ pub struct RunResult {
     pub splat_radius: f32,
     /// Seconds per frame.
     pub frame_dt: f64,
+    /// The scene's bundle (cameras and floor of the video).
+    pub bundle: Bundle,
 }
 
 /// Plans, carries the plan out and returns everything (`write_outputs`
@@ -253,6 +255,16 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     options.validate()?;
     let clock = Instant::now();
     let bundle = Bundle::open(&options.bundle)?;
+    if !options.no_video && options.camera >= bundle.meta.cameras.len() {
+        return Err(invalid(
+            "--camera",
+            format!(
+                "camera {} does not exist; the bundle has {}",
+                options.camera,
+                bundle.meta.cameras.len()
+            ),
+        ));
+    }
     let model: WorldModel = if options.untrained {
         WorldModel::from_bundle(
             &bundle,
@@ -460,5 +472,6 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         goal,
         splat_radius: model.splat_radius(),
         frame_dt: planning.frame_dt(),
+        bundle,
     })
 }

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dm_bundle::{Bundle, write_file_atomic};
+use dm_bundle::write_file_atomic;
 use dm_view::{RenderOptions, Splat, render, side_by_side};
 
 use crate::PlanError;
@@ -29,15 +29,15 @@ fn splats(
     })
 }
 
+/// Frame `t` of `frames`, or its last frame when shorter (no copy).
+fn at_frame(frames: &[Vec<[f64; 3]>], t: usize) -> &[[f64; 3]] {
+    frames.get(t).or(frames.last()).map_or(&[], Vec::as_slice)
+}
+
 /// Writes `video/frame_NNNNN.png` for every frame and returns the frame
-/// directory; `radius` is the particles' drawing radius.
-pub fn write_frames(
-    out: &Path,
-    bundle: &Bundle,
-    camera: usize,
-    result: &RunResult,
-    radius: f32,
-) -> Result<PathBuf, PlanError> {
+/// directory.
+pub fn write_frames(out: &Path, camera: usize, result: &RunResult) -> Result<PathBuf, PlanError> {
+    let (bundle, radius) = (&result.bundle, result.splat_radius);
     let dir = out.join("video");
     std::fs::create_dir_all(&dir).map_err(|e| PlanError::File {
         path: dir.clone(),
@@ -58,35 +58,20 @@ pub fn write_frames(
         bundle.meta.floor_height_m,
     );
     for t in 0..result.executed.len().max(result.planned.len()) {
-        let hands = result
-            .hands
-            .get(t)
-            .or(result.hands.last())
-            .cloned()
-            .unwrap_or_default();
+        let hands = at_frame(&result.hands, t);
         let panel = |points: &[[f64; 3]], color| {
             let scene: Vec<Splat> = splats(points, radius, color, 1)
                 .chain(splats(&result.goal.points, 0.5 * radius, GOAL_COLOR, 2))
-                .chain(splats(&hands, 0.009, HAND_COLOR, 3))
+                .chain(splats(hands, 0.009, HAND_COLOR, 3))
                 .collect();
             render(&view, &scene, &options).to_rgb8()
         };
-        let planned = result
-            .planned
-            .get(t)
-            .or(result.planned.last())
-            .cloned()
-            .unwrap_or_default();
-        let executed = result
-            .executed
-            .get(t)
-            .or(result.executed.last())
-            .cloned()
-            .unwrap_or_default();
+        let planned = at_frame(&result.planned, t);
+        let executed = at_frame(&result.executed, t);
         let image = side_by_side(
             &[
-                panel(&planned, PLANNED_COLOR),
-                panel(&executed, EXECUTED_COLOR),
+                panel(planned, PLANNED_COLOR),
+                panel(executed, EXECUTED_COLOR),
             ],
             &[],
         );

@@ -18,7 +18,7 @@ use crate::actions::ActionPlan;
 pub struct PlanningModel {
     coarse: CoarseModel,
     actuator: ActuatorConfig,
-    neo_hookean_only: bool,
+    experts: dm_model::ExpertChoice,
 }
 
 impl PlanningModel {
@@ -38,7 +38,7 @@ impl PlanningModel {
         Ok(Self {
             coarse,
             actuator,
-            neo_hookean_only: model.options.experts == dm_model::ExpertChoice::Nh,
+            experts: model.options.experts,
         })
     }
 
@@ -63,12 +63,7 @@ impl PlanningModel {
     /// A fresh world at the first frame.
     pub fn world<T: Real>(&self) -> Result<World<T>, PlanError> {
         let mut material = self.coarse.material::<T>(1.0, None);
-        if self.neo_hookean_only {
-            material
-                .expert_weights
-                .iter_mut()
-                .for_each(|w| *w = [T::one(), T::zero(), T::zero()]);
-        }
+        self.experts.apply_to(&mut material);
         Ok(World::new(
             self.coarse.physics.clone(),
             &self.coarse.body.particles,

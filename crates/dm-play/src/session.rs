@@ -433,11 +433,7 @@ impl Session {
         let mut m = self
             .coarse
             .material(self.material.e_scale, self.material.nu);
-        if self.model.options.experts == dm_model::ExpertChoice::Nh {
-            m.expert_weights
-                .iter_mut()
-                .for_each(|w| *w = [1.0, 0.0, 0.0]);
-        }
+        self.model.options.experts.apply_to(&mut m);
         m
     }
 

@@ -31,25 +31,23 @@ fn to_json_object<'py>(
     py.import("json")?.call_method1("loads", (text,))
 }
 
+/// A `ValueError` unless `index < count` (`what`: camera, frame).
+fn check_index(what: &str, index: usize, count: usize) -> PyResult<()> {
+    if index >= count {
+        return Err(PyValueError::new_err(format!(
+            "{what} {index} does not exist; the bundle has {count} {what}s"
+        )));
+    }
+    Ok(())
+}
+
 impl PyBundle {
     fn check_camera(&self, camera: usize) -> PyResult<()> {
-        let count = self.inner.meta.cameras.len();
-        if camera >= count {
-            return Err(PyValueError::new_err(format!(
-                "camera {camera} does not exist; the bundle has {count} cameras"
-            )));
-        }
-        Ok(())
+        check_index("camera", camera, self.inner.meta.cameras.len())
     }
 
     fn check_frame(&self, frame: usize) -> PyResult<()> {
-        let count = self.inner.frame_count();
-        if frame >= count {
-            return Err(PyValueError::new_err(format!(
-                "frame {frame} does not exist; the bundle has {count} frames"
-            )));
-        }
-        Ok(())
+        check_index("frame", frame, self.inner.frame_count())
     }
 
     /// The four images of one camera and frame.

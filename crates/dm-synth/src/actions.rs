@@ -110,6 +110,9 @@ fn top_height(preset: Preset, x: f64, y: f64) -> f64 {
     z.max(0.0)
 }
 
+/// Radius of the ring of anchors around a scripted hand's grasp point, metres.
+pub const GRIP_RING_RADIUS_M: f64 = 0.012;
+
 /// A cluster of anchors around the grasp point: a centre and a ring,
 /// slightly inside the top surface (as fingertips pressing in).
 fn anchor_cluster(preset: Preset, x: f64, y: f64, count: usize) -> ([f64; 3], Vec<[f64; 3]>) {
@@ -120,7 +123,7 @@ fn anchor_cluster(preset: Preset, x: f64, y: f64, count: usize) -> ([f64; 3], Ve
         Preset::Toy => 0.01,
     };
     let grasp = [x, y, top - depth];
-    let radius = 0.012;
+    let radius = GRIP_RING_RADIUS_M;
     let mut anchors = vec![grasp];
     for i in 0..count.saturating_sub(1) {
         let a = std::f64::consts::TAU * i as f64 / (count - 1) as f64;

@@ -38,15 +38,8 @@ fn main() -> Result<()> {
     write_outputs(&options.out, &result)
         .with_context(|| format!("writing {}", options.out.display()))?;
     if !options.no_video {
-        let bundle = dm_bundle::Bundle::open(&options.bundle)?;
-        let dir = dm_plan::video::write_frames(
-            &options.out,
-            &bundle,
-            options.camera,
-            &result,
-            result.splat_radius,
-        )
-        .context("rendering the video frames")?;
+        let dir = dm_plan::video::write_frames(&options.out, options.camera, &result)
+            .context("rendering the video frames")?;
         dm_appearance::clip::encode_mp4(&dir, 0..result.executed.len(), 1.0 / result.frame_dt)
             .context("encoding the video")?;
     }

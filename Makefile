@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -174,10 +174,13 @@ python: $(PY_VENV)/.installed
 	$(PY_VENV)/bin/pip install --quiet --disable-pip-version-check --force-reinstall --no-deps $(PY_WHEELS)/deformmaster-*.whl
 	@echo "deformmaster installed in $(PY_VENV): $(PY_VENV)/bin/python examples/python/rollout.py MODEL_DIR BUNDLE"
 
+# NVRTC of the setup venv, so `cargo test` compiles every CUDA kernel to PTX.
+NVRTC_LIB = $$(echo $(CURDIR)/$(VENV)/lib/python3*/site-packages/nvidia/cu13/lib)
+
 # pytest runs the package against the tools `cargo test` has just built (target/debug).
 test: setup
 	bash scripts/check_words.sh
-	$(CARGO) test --workspace
+	LD_LIBRARY_PATH=$(NVRTC_LIB)$${LD_LIBRARY_PATH:+:$$LD_LIBRARY_PATH} $(CARGO) test --workspace
 	$(MAKE) python
 	DM_BIN_DIR=$(CURDIR)/target/debug $(PY_VENV)/bin/python -m pytest -q crates/dm-python/tests
 
@@ -227,6 +230,13 @@ bench-peers: $(PEERS_VENV)/.installed
 	  $(PEERS) --peer $$peer --particles 100000 --experts nh --substeps $(PEERS_SUBSTEPS) 2>>$(PEERS_LOG); \
 	  $(PEERS) --peer $$peer --particles 10000 --grad-window 20 2>>$(PEERS_LOG); \
 	done
+
+# The GPU checks (docs/gpu.md): parity of the CUDA world against the CPU
+# world and substep throughput, from prebuilt release binaries, so the
+# folder GPU_BIN can be carried to a GPU machine without a Rust toolchain.
+GPU_BIN ?= target/release
+gpu-check:
+	bash benches/gpu/check.sh $(GPU_BIN)
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV) $(PY_VENV)

@@ -81,6 +81,21 @@ impl<T: Real> Actuators<T> {
         self.row_start.windows(2).filter(|w| w[1] > w[0]).count()
     }
 
+    /// The couplings as flat arrays: `row_start[p]..row_start[p + 1]`
+    /// index particle p's anchors and rest offsets.
+    pub fn coupling_arrays(&self) -> (&[u32], &[u32], &[Vec3<T>]) {
+        (&self.row_start, &self.anchor, &self.rest_offset)
+    }
+
+    /// Whether an active anchor has not grasped yet (the next frame's
+    /// grasp may then tie particles to it).
+    pub fn grasp_pending(&self, active: &[bool]) -> bool {
+        active
+            .iter()
+            .enumerate()
+            .any(|(a, &on)| on && !self.grasped.get(a).copied().unwrap_or(false))
+    }
+
     /// Anchors `a` of particle `p` with their rest offsets.
     pub fn couplings_of(&self, p: usize) -> impl Iterator<Item = (usize, Vec3<T>)> + '_ {
         let r = self.row_start[p] as usize..self.row_start[p + 1] as usize;

@@ -445,6 +445,42 @@ impl<T: Real> World<T> {
         active: &[bool],
         mut tape: Option<&mut FrameTape<T>>,
     ) -> Result<(), SimError> {
+        let path = self.begin_frame(anchors_from, anchors_to, active, None)?;
+        self.anchor_v = path.velocity.clone();
+        let steps = self.config.substeps_per_frame;
+        self.substep_in_frame = 0;
+        for s in 0..steps {
+            self.anchor_x = path.at_substep(s);
+            // A taped substep also keeps its post-P2G grid and bucketing
+            // for the backward pass when the tape's memory budget allows.
+            let mut taped = tape.as_deref_mut().filter(|tape| s + tape.window >= steps);
+            if let Some(tape) = taped.as_deref_mut() {
+                tape.record(&self.particles, &self.anchor_x, &self.anchor_v);
+                self.scratch.keep_pre_grid = tape.stores_grids();
+            }
+            let result = self.substep_here();
+            self.scratch.keep_pre_grid = false;
+            result?;
+            if let Some(tape) = taped
+                && tape.stores_grids()
+            {
+                tape.record_cache(self.scratch.take_cache());
+            }
+        }
+        self.frame += 1;
+        Ok(())
+    }
+
+    /// Checks a frame's anchors, lets active anchors grasp (at
+    /// `positions`, slot order; the world's own when `None`) and returns
+    /// where the anchors are during the frame.
+    pub fn begin_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        positions: Option<&[Vec3<T>]>,
+    ) -> Result<AnchorPath<T>, SimError> {
         let m = anchors_from.len();
         if anchors_to.len() != m || active.len() != m {
             return Err(SimError::InvalidInput(
@@ -472,43 +508,83 @@ impl<T: Real> World<T> {
         let steps = self.config.substeps_per_frame;
         let frame_dt = self.config.dt * steps as f64;
         let from: Vec<Vec3<T>> = anchors_from.iter().map(|&p| vec3(p)).collect();
-        self.actuators.grasp(&self.particles.x, &from, active);
-        self.anchor_v = anchors_from
-            .iter()
-            .zip(anchors_to)
-            .map(|(a, b)| vec3([0, 1, 2].map(|i| (b[i] - a[i]) / frame_dt)))
-            .collect();
-        self.substep_in_frame = 0;
-        for s in 0..steps {
-            let t = s as f64 / steps as f64;
-            self.anchor_x = anchors_from
+        let x = positions.unwrap_or(&self.particles.x);
+        self.actuators.grasp(x, &from, active);
+        Ok(AnchorPath {
+            velocity: anchors_from
                 .iter()
                 .zip(anchors_to)
-                .map(|(a, b)| vec3([0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t)))
-                .collect();
-            // A taped substep also keeps its post-P2G grid and bucketing
-            // for the backward pass when the tape's memory budget allows.
-            let mut taped = tape.as_deref_mut().filter(|tape| s + tape.window >= steps);
-            if let Some(tape) = taped.as_deref_mut() {
-                tape.record(&self.particles, &self.anchor_x, &self.anchor_v);
-                self.scratch.keep_pre_grid = tape.stores_grids();
-            }
-            let result = self.substep_here();
-            self.scratch.keep_pre_grid = false;
-            result?;
-            if let Some(tape) = taped
-                && tape.stores_grids()
-            {
-                tape.record_cache(self.scratch.take_cache());
-            }
-        }
+                .map(|(a, b)| vec3([0, 1, 2].map(|i| (b[i] - a[i]) / frame_dt)))
+                .collect(),
+            from: anchors_from.to_vec(),
+            to: anchors_to.to_vec(),
+            steps,
+        })
+    }
+
+    /// Counts a frame advanced outside [`World::step_frame`] (by another
+    /// backend holding the state).
+    pub fn count_frame(&mut self) {
         self.frame += 1;
-        Ok(())
+    }
+
+    /// The substep constants in force.
+    pub fn consts(&self) -> &Consts<T> {
+        &self.consts
+    }
+
+    /// The particle state in slot order (the world's internal order).
+    pub fn slot_particles(&self) -> &Particles<T> {
+        &self.particles
+    }
+
+    /// Mutable particle state in slot order, for a backend writing back
+    /// the state it advanced.
+    pub fn slot_particles_mut(&mut self) -> &mut Particles<T> {
+        &mut self.particles
+    }
+
+    /// The material in slot order.
+    pub fn slot_material(&self) -> &ParticleMaterial<T> {
+        &self.material
+    }
+
+    /// Whether every particle is a pure Neo-Hookean one (the fast path).
+    pub fn is_pure_neo_hookean(&self) -> bool {
+        self.pure_neo_hookean
+    }
+
+    /// `id_of_slot[slot]` = the caller's index of the particle in `slot`.
+    pub fn id_of_slot(&self) -> &[u32] {
+        &self.id_of_slot
     }
 
     /// Advances one frame with no anchors.
     pub fn step_frame_free(&mut self) -> Result<(), SimError> {
         self.step_frame(&[], &[], &[])
+    }
+}
+
+/// Where the anchors are during one frame: moving linearly from their
+/// positions at its start to those at its end.
+#[derive(Clone, Debug)]
+pub struct AnchorPath<T> {
+    /// Anchor velocities, m/s.
+    pub velocity: Vec<Vec3<T>>,
+    from: Vec<[f64; 3]>,
+    to: Vec<[f64; 3]>,
+    steps: usize,
+}
+
+impl<T: Real> AnchorPath<T> {
+    /// Anchor positions at the start of substep `s`.
+    pub fn at_substep(&self, s: usize) -> Vec<Vec3<T>> {
+        let t = s as f64 / self.steps as f64;
+        self.from
+            .iter()
+            .zip(&self.to)
+            .map(|(a, b)| vec3([0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t)))
+            .collect()
     }
 }
 

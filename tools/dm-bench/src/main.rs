@@ -7,6 +7,8 @@ use dm_mpm::material_backward::lame_vjp;
 use dm_mpm::scenes::{BenchExperts, bench_block, bench_block_frames};
 use std::time::Instant;
 
+mod cuda;
+
 #[derive(Parser, Debug)]
 #[command(name = "dm-bench", about = "DeformMaster benchmarks")]
 struct Cli {
@@ -23,6 +25,14 @@ enum Experts {
     Nh,
     /// Mixture of three constitutive experts.
     Moce,
+}
+
+/// Where the MPM world runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum Device {
+    Cpu,
+    /// An NVIDIA GPU through CUDA (driver and NVRTC loaded at run time).
+    Cuda,
 }
 
 #[derive(Subcommand, Debug)]
@@ -42,6 +52,21 @@ enum Command {
         /// density is 1 kg/m³, so dt η/(ρ dx²) is printed to compare).
         #[arg(long, default_value_t = 0.0)]
         viscosity: f64,
+        #[arg(long, value_enum, default_value_t = Device::Cpu)]
+        device: Device,
+        /// Timed runs on the GPU (the median is printed, with the spread).
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+    },
+    /// The CUDA world against the CPU world (f64 and f32) on two scenes
+    /// with hands, floor friction, drag, expert mixtures and plasticity;
+    /// fails when one frame's positions differ by more than 1e-4 of the domain.
+    CudaParity {
+        #[arg(long, default_value_t = 20_000)]
+        particles: usize,
+        /// Frames simulated (the first and last are compared).
+        #[arg(long, default_value_t = 10)]
+        frames: usize,
     },
     /// Forward + backward of one truncated-BPTT window on the reference
     /// block (Neo-Hookean); loss = mean |x|² after the window; gradient
@@ -110,11 +135,19 @@ fn main() -> Result<()> {
             experts,
             substeps,
             viscosity,
+            device,
+            repeats,
         } => {
             let experts = match experts {
                 Experts::Nh => BenchExperts::NeoHookean,
                 Experts::Moce => BenchExperts::Mixture,
             };
+            if device == Device::Cuda {
+                if viscosity > 0.0 {
+                    anyhow::bail!("--viscosity runs on the CPU only (use --device cpu)");
+                }
+                return cuda::mpm_throughput(particles, grid, experts, substeps, repeats);
+            }
             let mut world = bench_block::<f32>(particles, grid, experts, 0)
                 .context("building the benchmark block")?;
             if viscosity > 0.0 {
@@ -147,6 +180,7 @@ fn main() -> Result<()> {
                 rayon::current_num_threads()
             );
         }
+        Command::CudaParity { particles, frames } => cuda::parity(particles, frames)?,
         Command::Grad {
             particles,
             window,

@@ -1,0 +1,97 @@
+//! Opening the GPU and compiling the kernels for it.
+
+use crate::error::CudaError;
+use crate::kernels::{self, Precision};
+use cudarc::driver::{CudaContext, CudaFunction, CudaModule, CudaStream};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// One GPU with a stream and the kernels compiled for it (per precision,
+/// on first use).
+#[derive(Debug)]
+pub struct CudaDevice {
+    context: Arc<CudaContext>,
+    stream: Arc<CudaStream>,
+    arch: String,
+    modules: Mutex<HashMap<Precision, Arc<CudaModule>>>,
+}
+
+/// The entry points of one compiled module.
+#[derive(Clone, Debug)]
+pub(crate) struct Kernels {
+    pub cell_count: CudaFunction,
+    pub scan_chunks: CudaFunction,
+    pub scan_sums: CudaFunction,
+    pub scatter_order: CudaFunction,
+    pub p2g: CudaFunction,
+    pub grid_update: CudaFunction,
+    pub g2p: CudaFunction,
+    pub actuator_accel: CudaFunction,
+    pub enforce_rigid: CudaFunction,
+}
+
+impl CudaDevice {
+    /// Opens GPU `ordinal`: fails with a clear error where no driver, no
+    /// device or no NVRTC is found.
+    pub fn open(ordinal: usize) -> Result<Arc<Self>, CudaError> {
+        // SAFETY: only probes whether the shared library can be opened.
+        if !unsafe { cudarc::driver::sys::is_culib_present() } {
+            return Err(CudaError::NoDriver);
+        }
+        if !kernels::nvrtc_available() {
+            return Err(CudaError::NoNvrtc);
+        }
+        let context = CudaContext::new(ordinal).map_err(|e| CudaError::NoDevice(e.to_string()))?;
+        let (major, minor) = context.compute_capability()?;
+        let stream = context.new_stream()?;
+        Ok(Arc::new(Self {
+            context,
+            stream,
+            arch: format!("compute_{major}{minor}"),
+            modules: Mutex::new(HashMap::new()),
+        }))
+    }
+
+    /// The device's name as the driver reports it.
+    pub fn name(&self) -> String {
+        self.context
+            .name()
+            .unwrap_or_else(|e| format!("unknown ({e})"))
+    }
+
+    pub fn stream(&self) -> &Arc<CudaStream> {
+        &self.stream
+    }
+
+    /// The virtual architecture kernels are compiled for.
+    pub fn arch(&self) -> &str {
+        &self.arch
+    }
+
+    pub(crate) fn kernels(&self, precision: Precision) -> Result<Kernels, CudaError> {
+        let mut modules = self
+            .modules
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let module = match modules.get(&precision) {
+            Some(module) => module.clone(),
+            None => {
+                let ptx = kernels::compile(precision, &self.arch)?;
+                let module = self.context.load_module(ptx)?;
+                modules.insert(precision, module.clone());
+                module
+            }
+        };
+        Ok(Kernels {
+            cell_count: module.load_function("cell_count")?,
+            scan_chunks: module.load_function("scan_chunks")?,
+            scan_sums: module.load_function("scan_sums")?,
+            scatter_order: module.load_function("scatter_order")?,
+            p2g: module.load_function("p2g")?,
+            grid_update: module.load_function("grid_update")?,
+            g2p: module.load_function("g2p")?,
+            actuator_accel: module.load_function("actuator_accel")?,
+            enforce_rigid: module.load_function("enforce_rigid")?,
+        })
+    }
+}

@@ -1,0 +1,86 @@
+//! The kernel sources and their compilation by NVRTC.
+
+use crate::error::CudaError;
+use cudarc::nvrtc::{CompileOptions, Ptx};
+
+/// The float type a compiled module works in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Precision {
+    F32,
+    F64,
+}
+
+impl Precision {
+    /// The C type the kernels' `real` stands for.
+    pub fn c_type(self) -> &'static str {
+        match self {
+            Precision::F32 => "float",
+            Precision::F64 => "double",
+        }
+    }
+}
+
+/// The kernel files in the order they are concatenated into one unit.
+pub const FILES: [(&str, &str); 8] = [
+    ("common.cuh", include_str!("../kernels/common.cuh")),
+    ("svd.cuh", include_str!("../kernels/svd.cuh")),
+    ("stress.cuh", include_str!("../kernels/stress.cuh")),
+    ("sort.cu", include_str!("../kernels/sort.cu")),
+    ("p2g.cu", include_str!("../kernels/p2g.cu")),
+    ("grid_update.cu", include_str!("../kernels/grid_update.cu")),
+    ("g2p.cu", include_str!("../kernels/g2p.cu")),
+    ("actuators.cu", include_str!("../kernels/actuators.cu")),
+];
+
+/// Entry points every module has.
+pub const ENTRY_POINTS: [&str; 9] = [
+    "cell_count",
+    "scan_chunks",
+    "scan_sums",
+    "scatter_order",
+    "p2g",
+    "grid_update",
+    "g2p",
+    "actuator_accel",
+    "enforce_rigid",
+];
+
+/// The whole translation unit for `precision`.
+pub fn source(precision: Precision) -> String {
+    let mut unit = format!("#define REAL {}\n", precision.c_type());
+    for (name, text) in FILES {
+        unit.push_str(&format!("// ---- {name}\n#line 1 \"{name}\"\n"));
+        unit.push_str(text);
+        unit.push('\n');
+    }
+    unit
+}
+
+/// Whether NVRTC can be loaded on this machine.
+pub fn nvrtc_available() -> bool {
+    // SAFETY: only probes whether the shared library can be opened.
+    unsafe { cudarc::nvrtc::sys::is_culib_present() }
+}
+
+/// Compiles the kernels to PTX for the virtual architecture `arch`
+/// (e.g. `compute_90`).
+pub fn compile(precision: Precision, arch: &str) -> Result<Ptx, CudaError> {
+    compile_source(source(precision), precision, arch)
+}
+
+/// Compiles `unit` (the kernels of `precision`, possibly with checks
+/// appended) to PTX for `arch`.
+pub fn compile_source(unit: String, precision: Precision, arch: &str) -> Result<Ptx, CudaError> {
+    if !nvrtc_available() {
+        return Err(CudaError::NoNvrtc);
+    }
+    let options = CompileOptions {
+        options: vec![format!("--gpu-architecture={arch}"), "--std=c++17".into()],
+        name: Some(format!("dm_mpm_{}.cu", precision.c_type())),
+        ..Default::default()
+    };
+    cudarc::nvrtc::compile_ptx_with_opts(unit, options).map_err(|e| CudaError::Compile {
+        precision: precision.c_type(),
+        log: format!("{e:?}"),
+    })
+}

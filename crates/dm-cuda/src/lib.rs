@@ -1,0 +1,20 @@
+//! CUDA backend of the MLS-MPM world (`dm-mpm`): the same substep —
+//! stress and P2G, grid update, G2P, actuators — as CUDA C kernels
+//! (`kernels/`, one file per stage), compiled by NVRTC when the backend
+//! starts. The driver and NVRTC are loaded at run time, so every build
+//! has the backend and a machine without a GPU gets a clear error.
+//!
+//! [`CudaWorld`] holds the particle state on the device and a host
+//! [`dm_mpm::World`] for everything else (configuration, material,
+//! grasping); the state comes back to the host when asked for.
+
+pub mod consts;
+mod device;
+mod error;
+pub mod kernels;
+mod world;
+
+pub use device::CudaDevice;
+pub use error::CudaError;
+pub use kernels::Precision;
+pub use world::{CudaWorld, DeviceReal};

@@ -1,0 +1,579 @@
+//! The MPM world with its particle state on a GPU.
+
+use crate::consts::KernelConsts;
+use crate::device::{CudaDevice, Kernels};
+use crate::error::CudaError;
+use crate::kernels::Precision;
+use cudarc::driver::{
+    CudaSlice, CudaStream, DeviceRepr, LaunchConfig, PushKernelArg, ValidAsZeroBits,
+};
+use dm_mpm::real::Vec3;
+use dm_mpm::state::Particles;
+use dm_mpm::substep::StageSeconds;
+use dm_mpm::{ActuatorMode, Real, SimError, World};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// A float type the kernels are compiled for.
+pub trait DeviceReal: Real + DeviceRepr + ValidAsZeroBits {
+    const PRECISION: Precision;
+}
+impl DeviceReal for f32 {
+    const PRECISION: Precision = Precision::F32;
+}
+impl DeviceReal for f64 {
+    const PRECISION: Precision = Precision::F64;
+}
+
+const BLOCK_THREADS: u32 = 256;
+
+/// Launch shape covering `count` threads.
+fn launch_for(count: usize) -> LaunchConfig {
+    LaunchConfig {
+        grid_dim: ((count as u32).div_ceil(BLOCK_THREADS).max(1), 1, 1),
+        block_dim: (BLOCK_THREADS, 1, 1),
+        shared_mem_bytes: 0,
+    }
+}
+
+/// No failure recorded (the kernels keep the lowest failing key).
+const NO_FAILURE: u64 = u64::MAX;
+/// The failure key's bit telling a non-finite position or velocity from
+/// a collapsed F.
+const NOT_FINITE_BIT: u64 = 1 << 31;
+
+/// Flattens vectors or matrices into their scalars (nalgebra's
+/// column-major layout for matrices, which the kernels read).
+fn flat<T: Real, const R: usize, const C: usize>(values: &[nalgebra::SMatrix<T, R, C>]) -> Vec<T> {
+    values.iter().flat_map(|m| m.iter().copied()).collect()
+}
+
+fn unflat<T: Real, const R: usize, const C: usize>(
+    scalars: &[T],
+) -> Vec<nalgebra::SMatrix<T, R, C>> {
+    scalars
+        .chunks_exact(R * C)
+        .map(nalgebra::SMatrix::<T, R, C>::from_column_slice)
+        .collect()
+}
+
+/// The particle state, material and coupling arrays on the device.
+#[derive(Debug)]
+struct DeviceState<T> {
+    x: CudaSlice<T>,
+    v: CudaSlice<T>,
+    f: CudaSlice<T>,
+    c: CudaSlice<T>,
+    mass: CudaSlice<T>,
+    volume: CudaSlice<T>,
+    mu: CudaSlice<T>,
+    lambda: CudaSlice<T>,
+    weights: CudaSlice<T>,
+    accel: CudaSlice<T>,
+    grid: CudaSlice<T>,
+    row_start: CudaSlice<u32>,
+    anchor: CudaSlice<u32>,
+    rest_offset: CudaSlice<T>,
+    /// Anchor positions at the start of each substep of the frame, then
+    /// at its end (rigid mode), and their velocities.
+    anchor_x: CudaSlice<T>,
+    anchor_end: CudaSlice<T>,
+    anchor_v: CudaSlice<T>,
+    failure: CudaSlice<u64>,
+    /// The cell sort of P2G (sort.cu): each particle's cell key and rank
+    /// in its cell, the particles per key (scanned into starts), the
+    /// scan's chunk sums, and the slots in key order.
+    keys: CudaSlice<u32>,
+    ranks: CudaSlice<u32>,
+    counts: CudaSlice<u32>,
+    chunk_sums: CudaSlice<u32>,
+    order: CudaSlice<u32>,
+}
+
+/// Cells per block edge of the sort keys (sort.cu's SORT_BLOCK).
+const SORT_BLOCK: usize = 4;
+/// Values one block of the scan handles (sort.cu's SCAN_THREADS).
+const SCAN_THREADS: usize = 1024;
+
+/// How many sort keys a grid of `res`³ cells has.
+fn sort_key_count(res: usize) -> usize {
+    res.div_ceil(SORT_BLOCK).pow(3) * SORT_BLOCK.pow(3)
+}
+
+/// An MPM world advanced on a GPU: [`World`]'s frames and substeps with
+/// the state kept on the device.
+#[derive(Debug)]
+pub struct CudaWorld<T: DeviceReal> {
+    host: World<T>,
+    device: Arc<CudaDevice>,
+    kernels: Kernels,
+    state: DeviceState<T>,
+    /// Couplings on the device (the host's count when uploaded).
+    couplings_on_device: usize,
+    /// Whether the host world's particle state lags the device's.
+    host_stale: bool,
+    /// Seconds per stage, when timing is on (each launch then waits for
+    /// the GPU, so the substep runs slower than untimed).
+    stage_seconds: Option<StageSeconds>,
+}
+
+impl<T: DeviceReal> CudaWorld<T> {
+    /// Moves `world` onto `device`. Refuses what the kernels do not
+    /// have: the implicit viscous solve.
+    pub fn new(world: World<T>, device: Arc<CudaDevice>) -> Result<Self, CudaError> {
+        check_supported(&world)?;
+        let kernels = device.kernels(T::PRECISION)?;
+        let stream = device.stream().clone();
+        let n = world.particle_count();
+        let res = world.config().grid_res;
+        let p = world.slot_particles();
+        let m = world.slot_material();
+        let state = DeviceState {
+            x: stream.clone_htod(&flat(&p.x))?,
+            v: stream.clone_htod(&flat(&p.v))?,
+            f: stream.clone_htod(&flat(&p.f))?,
+            c: stream.clone_htod(&flat(&p.c))?,
+            mass: stream.clone_htod(&p.mass)?,
+            volume: stream.clone_htod(&p.volume)?,
+            mu: stream.clone_htod(&m.mu)?,
+            lambda: stream.clone_htod(&m.lambda)?,
+            weights: stream.clone_htod(
+                &m.expert_weights
+                    .iter()
+                    .flatten()
+                    .copied()
+                    .collect::<Vec<T>>(),
+            )?,
+            accel: stream.alloc_zeros(3 * n)?,
+            grid: stream.alloc_zeros(4 * res * res * res)?,
+            row_start: stream.alloc_zeros(n + 1)?,
+            anchor: stream.alloc_zeros(1)?,
+            rest_offset: stream.alloc_zeros(3)?,
+            anchor_x: stream.alloc_zeros(3)?,
+            anchor_end: stream.alloc_zeros(3)?,
+            anchor_v: stream.alloc_zeros(3)?,
+            failure: stream.clone_htod(&[NO_FAILURE])?,
+            keys: stream.alloc_zeros(n)?,
+            ranks: stream.alloc_zeros(n)?,
+            counts: stream.alloc_zeros(sort_key_count(res))?,
+            chunk_sums: stream.alloc_zeros(sort_key_count(res).div_ceil(SCAN_THREADS))?,
+            order: stream.alloc_zeros(n)?,
+        };
+        let mut world = Self {
+            host: world,
+            device,
+            kernels,
+            state,
+            couplings_on_device: 0,
+            host_stale: false,
+            stage_seconds: None,
+        };
+        world.upload_couplings()?;
+        Ok(world)
+    }
+
+    /// Starts (or stops) timing each stage: every launch then waits for
+    /// the GPU. P2G's time includes the stress, the grid update's the
+    /// clearing of the grid.
+    pub fn time_stages(&mut self, on: bool) {
+        self.stage_seconds = on.then(StageSeconds::default);
+    }
+
+    /// Seconds per stage since timing was turned on.
+    pub fn stage_seconds(&self) -> Option<StageSeconds> {
+        self.stage_seconds
+    }
+
+    pub fn device(&self) -> &Arc<CudaDevice> {
+        &self.device
+    }
+
+    fn stream(&self) -> &Arc<CudaStream> {
+        self.device.stream()
+    }
+
+    pub fn particle_count(&self) -> usize {
+        self.host.particle_count()
+    }
+
+    /// The host world (configuration, material, actuators); its particle
+    /// state is brought up to date first.
+    pub fn host(&mut self) -> Result<&World<T>, CudaError> {
+        self.download_state()?;
+        Ok(&self.host)
+    }
+
+    /// Changes the world on the host (material, effects, gravity, state…)
+    /// and sends the result back to the device.
+    pub fn edit<R>(&mut self, change: impl FnOnce(&mut World<T>) -> R) -> Result<R, CudaError> {
+        self.download_state()?;
+        let result = change(&mut self.host);
+        check_supported(&self.host)?;
+        self.upload_state()?;
+        self.upload_couplings()?;
+        Ok(result)
+    }
+
+    /// Gives the world back to the host, its state up to date.
+    pub fn into_host(mut self) -> Result<World<T>, CudaError> {
+        self.download_state()?;
+        Ok(self.host)
+    }
+
+    /// Positions in the caller's particle order, metres.
+    pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, CudaError> {
+        let x = self.stream().clone_dtoh(&self.state.x)?;
+        let mut out = vec![[0.0; 3]; self.particle_count()];
+        for (slot, &id) in self.host.id_of_slot().iter().enumerate() {
+            out[id as usize] = [0, 1, 2].map(|a| x[3 * slot + a].to_f64());
+        }
+        Ok(out)
+    }
+
+    /// The full particle state in the caller's order.
+    pub fn state(&mut self) -> Result<Particles<T>, CudaError> {
+        self.download_state()?;
+        Ok(self.host.state())
+    }
+
+    fn download_state(&mut self) -> Result<(), CudaError> {
+        if !self.host_stale {
+            return Ok(());
+        }
+        let stream = self.device.stream().clone();
+        let s = &self.state;
+        let (x, v, f, c) = (
+            stream.clone_dtoh(&s.x)?,
+            stream.clone_dtoh(&s.v)?,
+            stream.clone_dtoh(&s.f)?,
+            stream.clone_dtoh(&s.c)?,
+        );
+        let p = self.host.slot_particles_mut();
+        p.x = unflat::<T, 3, 1>(&x);
+        p.v = unflat::<T, 3, 1>(&v);
+        p.f = unflat::<T, 3, 3>(&f);
+        p.c = unflat::<T, 3, 3>(&c);
+        self.host_stale = false;
+        Ok(())
+    }
+
+    fn upload_state(&mut self) -> Result<(), CudaError> {
+        let stream = self.device.stream().clone();
+        let p = self.host.slot_particles();
+        let m = self.host.slot_material();
+        let s = &mut self.state;
+        stream.memcpy_htod(&flat(&p.x), &mut s.x)?;
+        stream.memcpy_htod(&flat(&p.v), &mut s.v)?;
+        stream.memcpy_htod(&flat(&p.f), &mut s.f)?;
+        stream.memcpy_htod(&flat(&p.c), &mut s.c)?;
+        stream.memcpy_htod(&p.mass, &mut s.mass)?;
+        stream.memcpy_htod(&p.volume, &mut s.volume)?;
+        stream.memcpy_htod(&m.mu, &mut s.mu)?;
+        stream.memcpy_htod(&m.lambda, &mut s.lambda)?;
+        let weights: Vec<T> = m.expert_weights.iter().flatten().copied().collect();
+        stream.memcpy_htod(&weights, &mut s.weights)?;
+        Ok(())
+    }
+
+    /// Sends the actuator couplings when the host's have changed (a grasp
+    /// only adds couplings, so their count tells).
+    fn upload_couplings(&mut self) -> Result<(), CudaError> {
+        let (row_start, anchor, rest) = self.host.actuators().coupling_arrays();
+        if anchor.len() == self.couplings_on_device {
+            return Ok(());
+        }
+        let stream = self.device.stream().clone();
+        let rest = flat(rest);
+        self.state.row_start = stream.clone_htod(row_start)?;
+        self.state.anchor = stream.clone_htod(anchor)?;
+        self.state.rest_offset = stream.clone_htod(&rest)?;
+        self.couplings_on_device = anchor.len();
+        Ok(())
+    }
+
+    fn kernel_consts(&self) -> KernelConsts<T> {
+        KernelConsts::new(
+            self.host.consts(),
+            self.host.is_pure_neo_hookean(),
+            &self.host.actuators().config,
+            self.couplings_on_device > 0,
+        )
+    }
+
+    /// Advances one video frame while the anchors move linearly from
+    /// `anchors_from` to `anchors_to` (as [`World::step_frame`]).
+    pub fn step_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+    ) -> Result<(), CudaError> {
+        let grasp_positions = if self.host.actuators().grasp_pending(active) {
+            let x = self.stream().clone_dtoh(&self.state.x)?;
+            Some(unflat::<T, 3, 1>(&x))
+        } else {
+            None
+        };
+        let path =
+            self.host
+                .begin_frame(anchors_from, anchors_to, active, grasp_positions.as_deref())?;
+        self.upload_couplings()?;
+        let steps = self.host.config().substeps_per_frame;
+        let coupled = self.couplings_on_device > 0;
+        if coupled {
+            let dt = self.host.consts().dt;
+            let mut starts = Vec::new();
+            let mut ends = Vec::new();
+            for s in 0..steps {
+                let at = path.at_substep(s);
+                ends.extend(at.iter().zip(&path.velocity).flat_map(|(x, v)| {
+                    let end: Vec3<T> = x + v * dt;
+                    [end.x, end.y, end.z]
+                }));
+                starts.extend(flat(&at));
+            }
+            let stream = self.device.stream().clone();
+            self.state.anchor_x = stream.clone_htod(&starts)?;
+            self.state.anchor_end = stream.clone_htod(&ends)?;
+            self.state.anchor_v = stream.clone_htod(&flat(&path.velocity))?;
+        }
+        let k = self.kernel_consts();
+        let anchors = anchors_from.len();
+        for s in 0..steps {
+            self.launch_substep(&k, s, coupled.then_some(s * anchors * 3))?;
+        }
+        self.host_stale = true;
+        self.check_failure()?;
+        self.host.count_frame();
+        Ok(())
+    }
+
+    /// Advances one frame with no anchors.
+    pub fn step_frame_free(&mut self) -> Result<(), CudaError> {
+        self.step_frame(&[], &[], &[])
+    }
+
+    /// Runs `count` substeps with no anchors and no divergence check
+    /// until [`CudaWorld::finish`] (for benchmarks: nothing waits on
+    /// the GPU in between).
+    pub fn substeps_unchecked(&mut self, count: usize) -> Result<(), CudaError> {
+        let k = self.kernel_consts();
+        for s in 0..count {
+            self.launch_substep(&k, s, None)?;
+        }
+        self.host_stale = true;
+        Ok(())
+    }
+
+    /// Waits for the GPU and reports a divergence since the last check.
+    pub fn finish(&mut self) -> Result<(), CudaError> {
+        self.check_failure()
+    }
+
+    /// Launches one substep; `anchor_offset` is the offset of this
+    /// substep's anchor positions when particles are coupled.
+    fn launch_substep(
+        &mut self,
+        k: &KernelConsts<T>,
+        substep: usize,
+        anchor_offset: Option<usize>,
+    ) -> Result<(), CudaError> {
+        let stream = self.device.stream().clone();
+        let n = self.particle_count();
+        let n_i32 = n as i32;
+        let s = &mut self.state;
+        let per_particle = launch_for(n);
+        let has_accel: i32 = anchor_offset.is_some() as i32;
+        let mut laps = Laps::new(&stream, self.stage_seconds.as_mut());
+        if let Some(offset) = anchor_offset {
+            let anchor_x = s.anchor_x.slice(offset..);
+            let mut launch = stream.launch_builder(&self.kernels.actuator_accel);
+            launch
+                .arg(k)
+                .arg(&n_i32)
+                .arg(&s.x)
+                .arg(&s.v)
+                .arg(&s.row_start)
+                .arg(&s.anchor)
+                .arg(&s.rest_offset)
+                .arg(&anchor_x)
+                .arg(&s.anchor_v)
+                .arg(&mut s.accel);
+            // SAFETY: the arguments match actuator_accel's signature and
+            // every buffer holds what the launch shape indexes.
+            unsafe { launch.launch(per_particle) }?;
+            laps.lap(|s| &mut s.actuators)?;
+        }
+        let res = self.host.config().grid_res;
+        let keys = sort_key_count(res);
+        let (keys_i32, chunks) = (keys as i32, keys.div_ceil(SCAN_THREADS));
+        let chunks_i32 = chunks as i32;
+        stream.memset_zeros(&mut s.counts)?;
+        let mut launch = stream.launch_builder(&self.kernels.cell_count);
+        launch
+            .arg(k)
+            .arg(&n_i32)
+            .arg(&s.x)
+            .arg(&mut s.keys)
+            .arg(&mut s.ranks)
+            .arg(&mut s.counts);
+        // SAFETY: as above, for cell_count (keys index `counts`, sized
+        // for every key of the grid).
+        unsafe { launch.launch(per_particle) }?;
+        let scan_block = |blocks: usize| LaunchConfig {
+            grid_dim: (blocks as u32, 1, 1),
+            block_dim: (SCAN_THREADS as u32, 1, 1),
+            shared_mem_bytes: 0,
+        };
+        let mut launch = stream.launch_builder(&self.kernels.scan_chunks);
+        launch
+            .arg(&mut s.counts)
+            .arg(&keys_i32)
+            .arg(&mut s.chunk_sums);
+        // SAFETY: as above, for scan_chunks (one block per chunk).
+        unsafe { launch.launch(scan_block(chunks)) }?;
+        let mut launch = stream.launch_builder(&self.kernels.scan_sums);
+        launch.arg(&mut s.chunk_sums).arg(&chunks_i32);
+        // SAFETY: as above, for scan_sums (one block).
+        unsafe { launch.launch(scan_block(1)) }?;
+        let mut launch = stream.launch_builder(&self.kernels.scatter_order);
+        launch
+            .arg(&n_i32)
+            .arg(&s.keys)
+            .arg(&s.ranks)
+            .arg(&s.counts)
+            .arg(&s.chunk_sums)
+            .arg(&mut s.order);
+        // SAFETY: as above, for scatter_order (starts + rank < n).
+        unsafe { launch.launch(per_particle) }?;
+        laps.lap(|s| &mut s.schedule)?;
+        stream.memset_zeros(&mut s.grid)?;
+        let mut launch = stream.launch_builder(&self.kernels.p2g);
+        launch
+            .arg(k)
+            .arg(&n_i32)
+            .arg(&s.order)
+            .arg(&s.keys)
+            .arg(&s.x)
+            .arg(&s.v)
+            .arg(&s.f)
+            .arg(&s.c)
+            .arg(&s.mass)
+            .arg(&s.volume)
+            .arg(&s.mu)
+            .arg(&s.lambda)
+            .arg(&s.weights)
+            .arg(&has_accel)
+            .arg(&s.accel)
+            .arg(&mut s.grid);
+        // SAFETY: as above, for p2g.
+        unsafe { launch.launch(per_particle) }?;
+        laps.lap(|s| &mut s.p2g)?;
+        let mut launch = stream.launch_builder(&self.kernels.grid_update);
+        launch.arg(k).arg(&mut s.grid);
+        // SAFETY: as above, for grid_update (one thread per node).
+        unsafe { launch.launch(launch_for(res * res * res)) }?;
+        laps.lap(|s| &mut s.grid_update)?;
+        let substep_i32 = substep as i32;
+        let mut launch = stream.launch_builder(&self.kernels.g2p);
+        launch
+            .arg(k)
+            .arg(&n_i32)
+            .arg(&substep_i32)
+            .arg(&s.grid)
+            .arg(&mut s.x)
+            .arg(&mut s.v)
+            .arg(&mut s.f)
+            .arg(&mut s.c)
+            .arg(&mut s.failure);
+        // SAFETY: as above, for g2p.
+        unsafe { launch.launch(per_particle) }?;
+        laps.lap(|s| &mut s.g2p)?;
+        if let Some(offset) = anchor_offset
+            && self.host.actuators().config.mode == ActuatorMode::Rigid
+        {
+            let anchor_end = s.anchor_end.slice(offset..);
+            let mut launch = stream.launch_builder(&self.kernels.enforce_rigid);
+            launch
+                .arg(&n_i32)
+                .arg(&s.row_start)
+                .arg(&s.anchor)
+                .arg(&s.rest_offset)
+                .arg(&anchor_end)
+                .arg(&s.anchor_v)
+                .arg(&mut s.x)
+                .arg(&mut s.v);
+            // SAFETY: as above, for enforce_rigid.
+            unsafe { launch.launch(per_particle) }?;
+            laps.lap(|s| &mut s.actuators)?;
+        }
+        Ok(())
+    }
+
+    /// Reads the failure key (waiting for the GPU) and turns a recorded
+    /// failure into [`SimError::Diverged`].
+    fn check_failure(&mut self) -> Result<(), CudaError> {
+        let stream = self.device.stream().clone();
+        let key = stream.clone_dtoh(&self.state.failure)?[0];
+        if key == NO_FAILURE {
+            return Ok(());
+        }
+        stream.memcpy_htod(&[NO_FAILURE], &mut self.state.failure)?;
+        let slot = (key & (NOT_FINITE_BIT - 1)) as usize;
+        let reason = if key & NOT_FINITE_BIT != 0 {
+            "position or velocity not finite"
+        } else {
+            "det F <= 0 or not finite"
+        };
+        Err(SimError::Diverged {
+            frame: self.host.frame(),
+            substep: (key >> 32) as usize,
+            particle: self.host.id_of_slot().get(slot).copied().unwrap_or(0) as usize,
+            reason: reason.into(),
+        }
+        .into())
+    }
+}
+
+/// A stopwatch adding each stage's time when timing is on (waiting for
+/// the GPU at each lap).
+struct Laps<'a> {
+    stream: &'a CudaStream,
+    totals: Option<&'a mut StageSeconds>,
+    clock: Instant,
+}
+
+impl<'a> Laps<'a> {
+    fn new(stream: &'a CudaStream, totals: Option<&'a mut StageSeconds>) -> Self {
+        if totals.is_some() {
+            // Earlier work is not this substep's.
+            let _ = stream.synchronize();
+        }
+        Self {
+            stream,
+            totals,
+            clock: Instant::now(),
+        }
+    }
+
+    fn lap(&mut self, stage: fn(&mut StageSeconds) -> &mut f64) -> Result<(), CudaError> {
+        if let Some(totals) = self.totals.as_deref_mut() {
+            self.stream.synchronize()?;
+            let now = Instant::now();
+            *stage(totals) += (now - self.clock).as_secs_f64();
+            self.clock = now;
+        }
+        Ok(())
+    }
+}
+
+/// Refuses worlds using what the kernels do not have.
+fn check_supported<T: Real>(world: &World<T>) -> Result<(), CudaError> {
+    if world.config().effects.viscosity != 0.0 {
+        return Err(CudaError::Unsupported(
+            "viscosity (the grid's implicit viscous solve runs on the CPU only); use --device cpu"
+                .into(),
+        ));
+    }
+    Ok(())
+}

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-scene clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -233,10 +233,21 @@ bench-peers: $(PEERS_VENV)/.installed
 
 # The GPU checks (docs/gpu.md): parity of the CUDA world against the CPU
 # world and substep throughput, from prebuilt release binaries, so the
-# folder GPU_BIN can be carried to a GPU machine without a Rust toolchain.
+# folder GPU_BIN can be carried to a GPU machine without a Rust toolchain;
+# with the scene and model of `make gpu-scene` (10^5 particles) also
+# dm-sim and the playground's frame on the CPU and the GPU.
 GPU_BIN ?= target/release
+GPU_SCENE ?= out/gpu/scene100k
+GPU_MODEL ?= out/gpu/model100k
 gpu-check:
-	bash benches/gpu/check.sh $(GPU_BIN)
+	@if [ -f $(GPU_MODEL)/model.json ]; then bash benches/gpu/check.sh $(GPU_BIN) $(GPU_SCENE) $(GPU_MODEL); \
+	  else bash benches/gpu/check.sh $(GPU_BIN); fi
+
+# A toy of 10^5 particles and its untrained model (small images: only the
+# simulation is timed).
+gpu-scene: build
+	./target/release/dm-synth --preset toy --seed 7 --truth-particles 100000 --bundle-particles 100000 --width 160 --height 120 --out $(GPU_SCENE) --truth $(GPU_SCENE).truth.json
+	./target/release/dm-fit $(GPU_SCENE) --out $(GPU_MODEL) --iters 0 --stage2-iters 0 --gain-evals 0 --residual none --rgb-iters 0
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV) $(PY_VENV)

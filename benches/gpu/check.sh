@@ -1,13 +1,19 @@
 #!/usr/bin/env bash
 # GPU checks of the CUDA world (docs/gpu.md), run from prebuilt binaries:
-#   bash benches/gpu/check.sh [BIN_DIR]
+#   bash benches/gpu/check.sh [BIN_DIR [SCENE MODEL_DIR [OUT]]]
 # 1. parity against the CPU world (f64 and f32, two scenes);
 # 2. substep throughput, 1e5 particles on a 32³ grid and 1e6 on 128³,
-#    Neo-Hookean and the expert mixture, with the CPU figure beside it.
+#    Neo-Hookean and the expert mixture, with the CPU figure beside it;
+# 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
+#    the GPU (times and largest position difference), and the playground's
+#    frame with all the model's particles at its substeps on both.
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
 BIN=${1:-target/release}
+SCENE=${2:-}
+MODEL=${3:-}
+OUT_DIR=${4:-out/gpu-check}
 status=0
 run() {
     echo "\$ $*"
@@ -33,4 +39,15 @@ for setup in "100000 32" "1000000 128"; do
     done
 done
 run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
+if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
+    mkdir -p "$OUT_DIR"
+    for device in cpu cuda; do
+        run "$BIN/dm-sim" "$SCENE" --model-dir "$MODEL" --out "$OUT_DIR/sim-$device" --device "$device"
+        python3 -c "import json,sys; s=json.load(open(sys.argv[1])); print('dm-sim $device: %d frames, %d particles, %.2f s, held-out track %.2f mm' % (s['frames'], s['particles'], s['seconds'], 1e3*s['track_error_m']['test']))" "$OUT_DIR/sim-$device/summary.json"
+    done
+    python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
+    for device in cuda cpu; do
+        run "$BIN/dm-bench" play --model "$MODEL" --exact --device "$device" --frames 40
+    done
+fi
 exit $status

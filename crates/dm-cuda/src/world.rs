@@ -196,6 +196,16 @@ impl<T: DeviceReal> CudaWorld<T> {
         self.host.particle_count()
     }
 
+    /// The configuration in force.
+    pub fn config(&self) -> &dm_mpm::PhysicsConfig {
+        self.host.config()
+    }
+
+    /// The actuator couplings (kept on the host).
+    pub fn actuators(&self) -> &dm_mpm::actuators::Actuators<T> {
+        self.host.actuators()
+    }
+
     /// The host world (configuration, material, actuators); its particle
     /// state is brought up to date first.
     pub fn host(&mut self) -> Result<&World<T>, CudaError> {

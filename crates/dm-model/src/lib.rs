@@ -3,6 +3,7 @@
 //! up axis from the bundle, material patches on the first-frame
 //! particles, actuators driven by the hand tracks), and open-loop rollouts.
 
+pub mod device;
 pub mod extension;
 pub mod hand_filter;
 pub mod metrics;
@@ -30,6 +31,8 @@ pub enum ModelError {
     Simulation(#[from] SimError),
     #[error(transparent)]
     Residual(#[from] dm_residual::ResidualError),
+    #[error(transparent)]
+    Device(#[from] dm_cuda::CudaError),
     #[error("invalid model option `{option}`: {problem}")]
     InvalidOption { option: String, problem: String },
 }
@@ -405,13 +408,24 @@ impl WorldModel {
         frames: usize,
         on_frame: &mut dyn FnMut(usize),
     ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
+        self.rollout_on(bundle, frames, device::Device::Cpu, on_frame)
+    }
+
+    /// [`WorldModel::rollout`] with the MPM world on `device`.
+    pub fn rollout_on(
+        &self,
+        bundle: &Bundle,
+        frames: usize,
+        device: device::Device,
+        on_frame: &mut dyn FnMut(usize),
+    ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         let frames = frames.min(bundle.frame_count());
-        let mut simulation = self.simulation()?;
-        let mut out = vec![simulation.positions_f32()];
+        let mut simulation = self.simulation_on(device)?;
+        let mut out = vec![simulation.positions_f32()?];
         for t in 0..frames.saturating_sub(1) {
             let (from, to, grasp) = self.hand_step(bundle, t);
             simulation.step(&from, &to, &grasp)?;
-            out.push(simulation.positions_f32());
+            out.push(simulation.positions_f32()?);
             on_frame(t + 1);
         }
         Ok(out)
@@ -458,10 +472,17 @@ impl WorldModel {
     /// A simulation of this model at its first frame: its world and, when
     /// it has one, its residual network.
     pub fn simulation(&self) -> Result<Simulation, ModelError> {
+        self.simulation_on(device::Device::Cpu)
+    }
+
+    /// [`WorldModel::simulation`] with the MPM world on `device` (the
+    /// residual network runs on the CPU).
+    pub fn simulation_on(&self, device: device::Device) -> Result<Simulation, ModelError> {
         Ok(Simulation {
-            world: self.world()?,
+            world: device::DeviceWorld::new(self.world()?, device)?,
             network: self.residual_network()?,
             starts: Vec::new(),
+            frames: 0,
         })
     }
 
@@ -486,29 +507,43 @@ impl WorldModel {
 /// the same frames.
 #[derive(Debug)]
 pub struct Simulation {
-    world: World<f32>,
+    world: device::DeviceWorld,
     network: Option<dm_residual::Residual>,
+    /// The frame starts the network reads (kept only with a network).
     starts: Vec<residual::FrameStart>,
+    frames: usize,
 }
 
 impl Simulation {
-    /// The MPM world (particle state, configuration).
-    pub fn world(&self) -> &World<f32> {
-        &self.world
+    /// The MPM world (particle state, configuration), its state fetched
+    /// from the GPU first when it runs there.
+    pub fn world(&mut self) -> Result<&World<f32>, ModelError> {
+        self.world.host()
+    }
+
+    /// The device the MPM world runs on.
+    pub fn device(&self) -> device::Device {
+        self.world.device()
+    }
+
+    /// The configuration in force.
+    pub fn config(&self) -> &PhysicsConfig {
+        self.world.config()
     }
 
     /// Frames stepped since the first frame.
     pub fn frame(&self) -> usize {
-        self.starts.len()
+        self.frames
     }
 
     /// Particle positions in the model's order.
-    pub fn positions_f32(&self) -> Vec<[f32; 3]> {
-        self.world
-            .positions()
+    pub fn positions_f32(&mut self) -> Result<Vec<[f32; 3]>, ModelError> {
+        Ok(self
+            .world
+            .positions()?
             .iter()
             .map(|p| p.map(|c| c as f32))
-            .collect()
+            .collect())
     }
 
     /// Advances one frame while the hand anchors move linearly from `from`
@@ -521,30 +556,36 @@ impl Simulation {
         to: &[[f64; 3]],
         grasp: &[bool],
     ) -> Result<(), ModelError> {
-        self.starts.push(residual::frame_start(&self.world));
+        let Some(network) = &self.network else {
+            self.world.step_frame(from, to, grasp)?;
+            self.frames += 1;
+            return Ok(());
+        };
+        self.starts.push(residual::frame_start(self.world.host()?));
         let t = self.starts.len() - 1;
-        let stepped = self.world.step_frame(from, to, grasp);
-        if let Err(error) = stepped {
+        if let Err(error) = self.world.step_frame(from, to, grasp) {
             self.starts.pop();
-            return Err(error.into());
+            return Err(error);
         }
-        if let Some(network) = &self.network {
-            residual::apply_residual(&mut self.world, network, &self.starts, t)?;
-        }
+        let starts = &self.starts;
+        self.world
+            .edit(|world| residual::apply_residual(world, network, starts, t))??;
+        self.frames += 1;
         Ok(())
     }
 
     /// Replaces the world by one built from `physics` and `material` (the
     /// substep is chosen again for the new stiffness) that continues from
-    /// the current particle state. Grasps are not carried over: anchors
-    /// marked in the next step's `grasp` capture them again.
+    /// the current particle state, on the same device. Grasps are not
+    /// carried over: anchors marked in the next step's `grasp` capture
+    /// them again.
     pub fn rebuild(
         &mut self,
         model: &WorldModel,
         physics: PhysicsConfig,
         material: ParticleMaterial<f32>,
     ) -> Result<(), ModelError> {
-        let state = self.world.state();
+        let state = self.world.state()?;
         let mut world = World::new(
             physics,
             &model.particles,
@@ -553,7 +594,7 @@ impl Simulation {
             model.actuator,
         )?;
         world.set_state(&state)?;
-        self.world = world;
+        self.world = device::DeviceWorld::new(world, self.world.device())?;
         Ok(())
     }
 }

@@ -46,25 +46,25 @@ impl Plant {
         }
     }
 
-    fn world(&self) -> &World<f32> {
+    fn world(&mut self) -> Result<&World<f32>, PlanError> {
         match self {
-            Plant::Model { simulation, .. } => simulation.world(),
-            Plant::Truth { world, .. } => world,
+            Plant::Model { simulation, .. } => Ok(simulation.world()?),
+            Plant::Truth { world, .. } => Ok(world),
         }
     }
 
-    pub fn positions(&self) -> Vec<[f64; 3]> {
-        self.world().positions()
+    pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
+        Ok(self.world()?.positions())
     }
 
-    pub fn state(&self) -> Particles<f32> {
-        self.world().state()
+    pub fn state(&mut self) -> Result<Particles<f32>, PlanError> {
+        Ok(self.world()?.state())
     }
 
     /// The surface particles, which a goal is compared with.
-    pub fn outline(&self) -> Vec<[f64; 3]> {
-        let positions = self.positions();
-        match self {
+    pub fn outline(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
+        let positions = self.positions()?;
+        Ok(match self {
             Plant::Model { surface_count, .. } => positions[..*surface_count].to_vec(),
             Plant::Truth { surface, .. } => positions
                 .iter()
@@ -72,7 +72,7 @@ impl Plant {
                 .filter(|(_, s)| **s)
                 .map(|(p, _)| *p)
                 .collect(),
-        }
+        })
     }
 
     /// The anchors that stand for the planned hands at `hands`.

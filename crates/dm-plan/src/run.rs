@@ -360,7 +360,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     let planned = rollout(&mut planning_world, &plan, true)?;
     let planned_outcome = cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[]));
 
-    let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions());
+    let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions()?);
     let observed_of: Vec<usize> = planning
         .particles()
         .iter()
@@ -377,17 +377,17 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             })
             .collect()
     });
-    let plant_scores = |plant: &Plant| {
-        scores(
+    let plant_scores = |plant: &mut Plant| -> Result<_, PlanError> {
+        Ok(scores(
             &goal.points,
-            &plant.outline(),
-            &plant.positions(),
+            &plant.outline()?,
+            &plant.positions()?,
             plant_correspondences.as_deref(),
-        )
+        ))
     };
-    let start_outcome = plant_scores(&plant);
+    let start_outcome = plant_scores(&mut plant)?;
     let mut tracker = planning.world::<f32>()?;
-    let mut executed = vec![plant.positions()];
+    let mut executed = vec![plant.positions()?];
     let mut hands = vec![plan.anchors(0)];
     let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
         .map_err(|e| invalid("--observation-noise-mm", e.to_string()))?;
@@ -409,7 +409,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             );
             plant.step(&from, &to, t + s == 0)?;
             tracker.step_frame(&from, &to, &vec![t - offset + s == 0; from.len()])?;
-            executed.push(plant.positions());
+            executed.push(plant.positions()?);
             hands.push(to);
             progress("execute", t + s + 1, options.horizon);
         }
@@ -417,7 +417,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         if options.replan_every > 0 && t < options.horizon {
             // Observed: the plant's positions with noise, its velocities;
             // the deformation as the model predicts it.
-            let truth = plant.state();
+            let truth = plant.state()?;
             let mut state = tracker.state();
             for (p, &q) in observed_of.iter().enumerate() {
                 for a in 0..3 {
@@ -440,7 +440,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             replans += 1;
         }
     }
-    let executed_outcome = plant_scores(&plant);
+    let executed_outcome = plant_scores(&mut plant)?;
     let record = PlanRecord {
         options: options.clone(),
         goal: GoalRecord {

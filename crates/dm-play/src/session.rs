@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use dm_appearance::SplatFollower;
 use dm_model::WorldModel;
+use dm_model::device::{Device, DeviceWorld};
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::{ActuatorConfig, ActuatorMode, ParticleMaterial, PhysicsConfig, World};
 use serde::{Deserialize, Serialize};
@@ -42,6 +43,9 @@ pub struct PlayOptions {
     /// model's, 0.3).
     #[serde(default)]
     pub cfl: Option<f64>,
+    /// Where the MPM world runs.
+    #[serde(default)]
+    pub device: Device,
 }
 
 /// Grid of [`PlayOptions::interactive`].
@@ -64,6 +68,7 @@ impl PlayOptions {
             substeps: Some(1),
             particles: Some(INTERACTIVE_PARTICLES),
             cfl: Some(INTERACTIVE_CFL),
+            device: Device::Cpu,
         }
     }
 
@@ -81,6 +86,7 @@ impl PlayOptions {
             substeps: overrides.substeps.or(base.substeps),
             particles: overrides.particles.or(base.particles),
             cfl: overrides.cfl.or(base.cfl),
+            device: overrides.device,
         }
     }
 }
@@ -108,6 +114,9 @@ pub struct PlayArgs {
     /// and substeps): slower than real time on small machines.
     #[arg(long, conflicts_with_all = ["grid", "particles"])]
     pub exact: bool,
+    /// Where the MPM world runs (cuda: the first NVIDIA GPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    pub device: Device,
 }
 
 #[cfg(feature = "cli")]
@@ -121,6 +130,7 @@ impl PlayArgs {
                 substeps: self.substeps,
                 particles: self.particles,
                 cfl: self.cfl,
+                device: self.device,
             },
         )
     }
@@ -226,7 +236,8 @@ pub struct Recording {
 pub struct Session {
     model: WorldModel,
     coarse: CoarseModel,
-    world: World<f32>,
+    world: DeviceWorld,
+    device: Device,
     hands: [Hand; HAND_COUNT],
     material: MaterialControl,
     /// Particles positions of the last frame (model order).
@@ -324,18 +335,22 @@ impl Session {
         };
         let view = SceneView::new(&coarse.body.particles, &coarse.physics)?;
         // Replaced by `rebuild_world` below (with the material control).
-        let world = World::new(
-            coarse.physics.clone(),
-            &coarse.body.particles,
-            coarse.body.particle_volume,
-            coarse.material(1.0, None),
-            model.actuator,
+        let world = DeviceWorld::new(
+            World::new(
+                coarse.physics.clone(),
+                &coarse.body.particles,
+                coarse.body.particle_volume,
+                coarse.material(1.0, None),
+                model.actuator,
+            )?,
+            options.device,
         )?;
         let positions = to_f32(&coarse.body.particles);
         let mut session = Self {
             hands: initial_hands(&coarse.body.particles, &view),
             coarse,
             world,
+            device: options.device,
             material,
             positions,
             sim_ms: 0.0,
@@ -465,7 +480,11 @@ impl Session {
     fn rebuild_world(&mut self, keep_state: bool) -> Result<(), PlayError> {
         let mut physics = self.coarse.physics.clone();
         physics.particle_damping = self.material.damping;
-        let state = keep_state.then(|| self.world.state());
+        let state = if keep_state {
+            Some(self.world.state()?)
+        } else {
+            None
+        };
         let mut world = World::new(
             physics,
             &self.coarse.body.particles,
@@ -476,7 +495,7 @@ impl Session {
         if let Some(state) = state {
             world.set_state(&state)?;
         }
-        self.world = world;
+        self.world = DeviceWorld::new(world, self.device)?;
         Ok(())
     }
 
@@ -616,7 +635,7 @@ impl Session {
         self.frame += 1;
         self.positions = self
             .world
-            .positions()
+            .positions()?
             .iter()
             .map(|p| p.map(|c| c as f32))
             .collect();

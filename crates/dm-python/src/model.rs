@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use dm_appearance::follow::SplatFollower;
+use dm_model::device::Device;
 use dm_model::metrics::{chamfer_to, frame_errors, match_tracks};
 use dm_model::{ModelOptions, ResidualKind, Simulation, WorldModel};
 use dm_play::MaterialControl;
@@ -165,14 +166,26 @@ impl PyModel {
     /// A simulation at the first frame with the hands at `hands` ((H, 3)
     /// metres). With `follow_splats` the fitted splats are moved every
     /// frame (needed for splat renders; costs a few ms per frame).
-    #[pyo3(signature = (hands, follow_splats = false))]
+    /// `device` is "cpu" or "cuda" (the first NVIDIA GPU; the residual
+    /// network stays on the CPU).
+    #[pyo3(signature = (hands, follow_splats = false, device = "cpu"))]
     fn simulation(
         &self,
         py: Python<'_>,
         hands: PyArrayLike2<'_, f64, AllowTypeChange>,
         follow_splats: bool,
+        device: &str,
     ) -> PyResult<PySimulation> {
         guarded("Model.simulation", || {
+            let device = match device {
+                "cpu" => Device::Cpu,
+                "cuda" => Device::Cuda,
+                other => {
+                    return Err(ModelError::new_err(format!(
+                        "device: expected \"cpu\" or \"cuda\", got {other:?}"
+                    )));
+                }
+            };
             let hands = points_from_array(&hands, "hands")?;
             let follower = match (&self.splats, follow_splats) {
                 (Some(g), true) => Some(
@@ -187,7 +200,9 @@ impl PyModel {
                 _ => None,
             };
             let model = self.model.clone();
-            let simulation = py.detach(|| model.simulation()).map_err(model_error)?;
+            let simulation = py
+                .detach(|| model.simulation_on(device))
+                .map_err(model_error)?;
             Ok(PySimulation {
                 state: Mutex::new(SimulationState {
                     simulation,
@@ -335,7 +350,7 @@ impl SimulationState {
         self.grasp_next = false;
         if let Some(follower) = &mut self.follower {
             follower
-                .advance(&self.simulation.positions_f32())
+                .advance(&self.simulation.positions_f32().map_err(model_error)?)
                 .map_err(|e| SimulationError::new_err(e.to_string()))?;
         }
         Ok(())
@@ -405,7 +420,7 @@ impl PySimulation {
                 let mut out = Vec::with_capacity(path.len());
                 for to in &path {
                     state.step(to, None)?;
-                    out.push(state.simulation.positions_f32());
+                    out.push(state.simulation.positions_f32().map_err(model_error)?);
                 }
                 Ok(out)
             })?;
@@ -434,7 +449,11 @@ impl PySimulation {
     fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
         Ok(points_to_array(
             py,
-            &self.lock()?.simulation.positions_f32(),
+            &self
+                .lock()?
+                .simulation
+                .positions_f32()
+                .map_err(model_error)?,
         ))
     }
 
@@ -443,14 +462,24 @@ impl PySimulation {
     fn velocities<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         Ok(points_to_array(
             py,
-            &self.lock()?.simulation.world().velocities(),
+            &self
+                .lock()?
+                .simulation
+                .world()
+                .map_err(model_error)?
+                .velocities(),
         ))
     }
 
     /// Deformation gradients F, (N, 3, 3) float32.
     #[getter]
     fn deformation_gradients<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray3<f32>>> {
-        let f = self.lock()?.simulation.world().deformation_gradients();
+        let f = self
+            .lock()?
+            .simulation
+            .world()
+            .map_err(model_error)?
+            .deformation_gradients();
         let array = ndarray::Array3::from_shape_fn((f.len(), 3, 3), |(p, r, c)| f[p][(r, c)]);
         Ok(array.into_pyarray(py))
     }
@@ -462,7 +491,11 @@ impl PySimulation {
         py: Python<'py>,
         particles: PyArrayLike1<'_, i64, AllowTypeChange>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let positions = self.lock()?.simulation.positions_f32();
+        let positions = self
+            .lock()?
+            .simulation
+            .positions_f32()
+            .map_err(model_error)?;
         let ids = particles.as_array();
         let mut out = Vec::with_capacity(ids.len());
         for &i in ids {
@@ -484,8 +517,8 @@ impl PySimulation {
     /// ((M, 3)) to the surface particles: the metric's Chamfer term.
     fn chamfer_to(&self, targets: PyArrayLike2<'_, f64, AllowTypeChange>) -> PyResult<f64> {
         let targets = points_from_array(&targets, "targets")?;
-        let state = self.lock()?;
-        let positions = state.simulation.world().positions();
+        let mut state = self.lock()?;
+        let positions = state.simulation.world().map_err(model_error)?.positions();
         let surface = &positions[..self.model.surface_count.min(positions.len())];
         Ok(chamfer_to(surface, &targets))
     }
@@ -555,7 +588,13 @@ impl PySimulation {
     /// Substeps per frame in force (chosen for the stiffest material).
     #[getter]
     fn substeps_per_frame(&self) -> PyResult<usize> {
-        Ok(self.lock()?.simulation.world().config().substeps_per_frame)
+        Ok(self
+            .lock()?
+            .simulation
+            .world()
+            .map_err(model_error)?
+            .config()
+            .substeps_per_frame)
     }
 
     /// Renders the current frame from `camera` (a dict with width, height,
@@ -572,8 +611,8 @@ impl PySimulation {
     ) -> PyResult<Bound<'py, PyDict>> {
         guarded("Simulation.render", || {
             let camera = camera.to_camera()?;
-            let state = self.lock()?;
-            let positions = state.simulation.positions_f32();
+            let mut state = self.lock()?;
+            let positions = state.simulation.positions_f32().map_err(model_error)?;
             let hands: Vec<[f32; 3]> = state.hands.iter().map(|h| h.map(|c| c as f32)).collect();
             let splats = state.follower.as_ref().map(|f| f.gaussians());
             let model = &self.model;

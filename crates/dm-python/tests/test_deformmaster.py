@@ -195,6 +195,9 @@ def test_errors_name_file_and_field(tiny, tmp_path):
     far = bundle.hand_anchors(1) + 50.0
     with pytest.raises(dm.SimulationError):
         sim.step(far)
+    model = dm.load_model(tiny["model"])
+    with pytest.raises(dm.ModelError, match="device"):
+        model.simulation(bundle.hand_anchors(0), device="tpu")
 
 
 def test_the_gil_is_released_while_stepping(tiny):

@@ -5,6 +5,7 @@
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
+use dm_model::device::Device;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_model::preview::comparison_strip;
 use dm_model::{ModelOptions, WorldModel};
@@ -34,6 +35,10 @@ struct SimArgs {
     /// Frames to roll out (default: the whole clip).
     #[arg(long)]
     frames: Option<usize>,
+    /// Where the MPM world runs (cuda: the first NVIDIA GPU; the residual
+    /// network stays on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    device: Device,
 }
 
 #[derive(Serialize)]
@@ -83,7 +88,9 @@ fn main() -> Result<()> {
     );
     let start = Instant::now();
     let rollout = model
-        .rollout(&bundle, frames, &mut |t| bar.set_position(t as u64))
+        .rollout_on(&bundle, frames, args.device, &mut |t| {
+            bar.set_position(t as u64)
+        })
         .context("rolling out the world model (nothing was written)")?;
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();

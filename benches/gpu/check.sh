@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # GPU checks of the CUDA world (docs/gpu.md), run from prebuilt binaries:
 #   bash benches/gpu/check.sh [BIN_DIR [SCENE MODEL_DIR [OUT]]]
-# 1. parity against the CPU world (f64 and f32, two scenes);
+# 1. parity against the CPU world (f64 and f32, two scenes): positions
+#    after frames, and every group of one substep's adjoint;
 # 2. substep throughput, 1e5 particles on a 32³ grid and 1e6 on 128³,
 #    Neo-Hookean and the expert mixture, with the CPU figure beside it;
+#    one truncated window (20 substeps, forward and backward) at 1e5
+#    particles, with its gradients against the CPU's;
 # 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
 #    the GPU (times and largest position difference), and the playground's
 #    frame with all the model's particles at its substeps on both.
@@ -38,6 +41,7 @@ for setup in "100000 32" "1000000 128"; do
         run "$BIN/dm-bench" mpm --device cuda --particles "$1" --grid "$2" --experts "$experts" --substeps 400 --repeats 5
     done
 done
+run "$BIN/dm-bench" grad --device cuda --particles 100000 --window 20 --grid 32 --repeats 5
 run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
 if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     mkdir -p "$OUT_DIR"

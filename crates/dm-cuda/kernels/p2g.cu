@@ -42,39 +42,25 @@ __device__ __forceinline__ void particle_impulse(
     momentum = v3_scale(v3_add(v, v3_scale(a, k.dt)), m);
 }
 
-extern "C" __global__ void p2g(
-    Consts k, int n, const unsigned* __restrict__ order, const unsigned* __restrict__ keys,
-    const real* __restrict__ xs, const real* __restrict__ vs,
-    const real* __restrict__ fs, const real* __restrict__ cs,
-    const real* __restrict__ mass, const real* __restrict__ volume,
-    const real* __restrict__ mu, const real* __restrict__ lambda,
-    const real* __restrict__ weights, int has_accel, const real* __restrict__ accel,
-    real* __restrict__ grid)
+// Adds w_i (momentum + affine (x_i − x_p)) to lanes 0-2 and w_i m to lane
+// 3 of the 27 stencil nodes of each valid thread's particle, threads in
+// cell order (`key`: the cell; invalid threads are at the end). Every
+// thread of the block must call it.
+__device__ void scatter_sorted(
+    const Consts& k, bool valid, const Stencil& st, unsigned key,
+    const v3& momentum, const m3& affine, real m, real* __restrict__ grid)
 {
     __shared__ real tile[P2G_TILE_NODES * 4];
     __shared__ int box_lo[3], box_hi[3];
-    int i_sorted = blockIdx.x * blockDim.x + threadIdx.x;
-    bool valid = i_sorted < n;
-    int p = valid ? (int)order[i_sorted] : 0;
     if (threadIdx.x < 3) {
         box_lo[threadIdx.x] = 1 << 30;
         box_hi[threadIdx.x] = -1;
     }
     __syncthreads();
-    Stencil st;
-    unsigned key = 0xffffffffu;
     if (valid) {
-        st = make_stencil(k, v3_load(xs + 3 * p));
-        key = keys[p];
         for (int a = 0; a < 3; ++a) {
             atomicMin(&box_lo[a], st.base[a]);
             atomicMax(&box_hi[a], st.base[a] + 2);
-        }
-    } else {
-        for (int a = 0; a < 3; ++a) {
-            st.base[a] = 0;
-            st.frac[a] = (real)0;
-            st.w[a][0] = st.w[a][1] = st.w[a][2] = (real)0;
         }
     }
     __syncthreads();
@@ -85,13 +71,6 @@ extern "C" __global__ void p2g(
     if (use_tile) {
         for (int t = threadIdx.x; t < tile_nodes * 4; t += blockDim.x) tile[t] = (real)0;
         __syncthreads();
-    }
-    m3 affine = m3_zero();
-    v3 momentum = v3_zero();
-    real m = (real)0;
-    if (valid) {
-        particle_impulse(k, p, vs, fs, cs, mass, volume, mu, lambda, weights, has_accel, accel, affine, momentum);
-        m = mass[p];
     }
     // Segments: runs of lanes with the same cell (same 27 nodes).
     int lane = threadIdx.x & 31;
@@ -138,7 +117,8 @@ extern "C" __global__ void p2g(
         __syncthreads();
         for (int t = threadIdx.x; t < tile_nodes; t += blockDim.x) {
             const real* src = tile + 4 * t;
-            if (src[3] == (real)0) continue;  // no particle's stencil reached it
+            // No particle's stencil reached it.
+            if (src[0] == (real)0 && src[1] == (real)0 && src[2] == (real)0 && src[3] == (real)0) continue;
             int ti = t / (extent[1] * extent[2]);
             int tj = (t / extent[2]) % extent[1];
             int tk = t % extent[2];
@@ -146,4 +126,49 @@ extern "C" __global__ void p2g(
             for (int c = 0; c < 4; ++c) atomicAdd(node + c, src[c]);
         }
     }
+}
+
+// The stencil and cell key of the particle a thread takes in cell order.
+__device__ __forceinline__ bool sorted_particle(
+    const Consts& k, int n, const unsigned* __restrict__ order, const unsigned* __restrict__ keys,
+    const real* __restrict__ xs, int& p, Stencil& st, unsigned& key)
+{
+    int i_sorted = blockIdx.x * blockDim.x + threadIdx.x;
+    bool valid = i_sorted < n;
+    p = valid ? (int)order[i_sorted] : 0;
+    key = 0xffffffffu;
+    if (valid) {
+        st = make_stencil(k, v3_load(xs + 3 * p));
+        key = keys[p];
+    } else {
+        for (int a = 0; a < 3; ++a) {
+            st.base[a] = 0;
+            st.frac[a] = (real)0;
+            st.w[a][0] = st.w[a][1] = st.w[a][2] = (real)0;
+        }
+    }
+    return valid;
+}
+
+extern "C" __global__ void p2g(
+    Consts k, int n, const unsigned* __restrict__ order, const unsigned* __restrict__ keys,
+    const real* __restrict__ xs, const real* __restrict__ vs,
+    const real* __restrict__ fs, const real* __restrict__ cs,
+    const real* __restrict__ mass, const real* __restrict__ volume,
+    const real* __restrict__ mu, const real* __restrict__ lambda,
+    const real* __restrict__ weights, int has_accel, const real* __restrict__ accel,
+    real* __restrict__ grid)
+{
+    int p;
+    Stencil st;
+    unsigned key;
+    bool valid = sorted_particle(k, n, order, keys, xs, p, st, key);
+    m3 affine = m3_zero();
+    v3 momentum = v3_zero();
+    real m = (real)0;
+    if (valid) {
+        particle_impulse(k, p, vs, fs, cs, mass, volume, mu, lambda, weights, has_accel, accel, affine, momentum);
+        m = mass[p];
+    }
+    scatter_sorted(k, valid, st, key, momentum, affine, m, grid);
 }

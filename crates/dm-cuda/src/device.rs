@@ -28,6 +28,10 @@ pub(crate) struct Kernels {
     pub g2p: CudaFunction,
     pub actuator_accel: CudaFunction,
     pub enforce_rigid: CudaFunction,
+    pub g2p_backward_gather: CudaFunction,
+    pub g2p_backward_scatter: CudaFunction,
+    pub grid_update_backward: CudaFunction,
+    pub p2g_backward: CudaFunction,
 }
 
 impl CudaDevice {
@@ -92,6 +96,10 @@ impl CudaDevice {
             g2p: module.load_function("g2p")?,
             actuator_accel: module.load_function("actuator_accel")?,
             enforce_rigid: module.load_function("enforce_rigid")?,
+            g2p_backward_gather: module.load_function("g2p_backward_gather")?,
+            g2p_backward_scatter: module.load_function("g2p_backward_scatter")?,
+            grid_update_backward: module.load_function("grid_update_backward")?,
+            p2g_backward: module.load_function("p2g_backward")?,
         })
     }
 }

@@ -21,19 +21,40 @@ impl Precision {
 }
 
 /// The kernel files in the order they are concatenated into one unit.
-pub const FILES: [(&str, &str); 8] = [
+pub const FILES: [(&str, &str); 14] = [
     ("common.cuh", include_str!("../kernels/common.cuh")),
     ("svd.cuh", include_str!("../kernels/svd.cuh")),
     ("stress.cuh", include_str!("../kernels/stress.cuh")),
+    ("moments.cuh", include_str!("../kernels/moments.cuh")),
+    (
+        "svd_backward.cuh",
+        include_str!("../kernels/svd_backward.cuh"),
+    ),
+    (
+        "stress_backward.cuh",
+        include_str!("../kernels/stress_backward.cuh"),
+    ),
     ("sort.cu", include_str!("../kernels/sort.cu")),
     ("p2g.cu", include_str!("../kernels/p2g.cu")),
     ("grid_update.cu", include_str!("../kernels/grid_update.cu")),
     ("g2p.cu", include_str!("../kernels/g2p.cu")),
     ("actuators.cu", include_str!("../kernels/actuators.cu")),
+    (
+        "g2p_backward.cu",
+        include_str!("../kernels/g2p_backward.cu"),
+    ),
+    (
+        "grid_update_backward.cu",
+        include_str!("../kernels/grid_update_backward.cu"),
+    ),
+    (
+        "p2g_backward.cu",
+        include_str!("../kernels/p2g_backward.cu"),
+    ),
 ];
 
 /// Entry points every module has.
-pub const ENTRY_POINTS: [&str; 9] = [
+pub const ENTRY_POINTS: [&str; 13] = [
     "cell_count",
     "scan_chunks",
     "scan_sums",
@@ -43,6 +64,10 @@ pub const ENTRY_POINTS: [&str; 9] = [
     "g2p",
     "actuator_accel",
     "enforce_rigid",
+    "g2p_backward_gather",
+    "g2p_backward_scatter",
+    "grid_update_backward",
+    "p2g_backward",
 ];
 
 /// The whole translation unit for `precision`.

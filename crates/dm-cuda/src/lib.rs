@@ -8,12 +8,15 @@
 //! [`dm_mpm::World`] for everything else (configuration, material,
 //! grasping); the state comes back to the host when asked for.
 
+mod backward;
 pub mod consts;
 mod device;
 mod error;
 pub mod kernels;
+mod launch;
 mod world;
 
+pub use backward::{DeviceTape, WindowGrads};
 pub use device::CudaDevice;
 pub use error::CudaError;
 pub use kernels::Precision;

@@ -1,12 +1,12 @@
 //! The MPM world with its particle state on a GPU.
 
+use crate::backward::AdjointBuffers;
 use crate::consts::KernelConsts;
 use crate::device::{CudaDevice, Kernels};
 use crate::error::CudaError;
 use crate::kernels::Precision;
-use cudarc::driver::{
-    CudaSlice, CudaStream, DeviceRepr, LaunchConfig, PushKernelArg, ValidAsZeroBits,
-};
+use crate::launch::{Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
+use cudarc::driver::{CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits};
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
 use dm_mpm::substep::StageSeconds;
@@ -25,17 +25,6 @@ impl DeviceReal for f64 {
     const PRECISION: Precision = Precision::F64;
 }
 
-const BLOCK_THREADS: u32 = 256;
-
-/// Launch shape covering `count` threads.
-fn launch_for(count: usize) -> LaunchConfig {
-    LaunchConfig {
-        grid_dim: ((count as u32).div_ceil(BLOCK_THREADS).max(1), 1, 1),
-        block_dim: (BLOCK_THREADS, 1, 1),
-        shared_mem_bytes: 0,
-    }
-}
-
 /// No failure recorded (the kernels keep the lowest failing key).
 const NO_FAILURE: u64 = u64::MAX;
 /// The failure key's bit telling a non-finite position or velocity from
@@ -44,11 +33,13 @@ const NOT_FINITE_BIT: u64 = 1 << 31;
 
 /// Flattens vectors or matrices into their scalars (nalgebra's
 /// column-major layout for matrices, which the kernels read).
-fn flat<T: Real, const R: usize, const C: usize>(values: &[nalgebra::SMatrix<T, R, C>]) -> Vec<T> {
+pub(crate) fn flat<T: Real, const R: usize, const C: usize>(
+    values: &[nalgebra::SMatrix<T, R, C>],
+) -> Vec<T> {
     values.iter().flat_map(|m| m.iter().copied()).collect()
 }
 
-fn unflat<T: Real, const R: usize, const C: usize>(
+pub(crate) fn unflat<T: Real, const R: usize, const C: usize>(
     scalars: &[T],
 ) -> Vec<nalgebra::SMatrix<T, R, C>> {
     scalars
@@ -57,20 +48,9 @@ fn unflat<T: Real, const R: usize, const C: usize>(
         .collect()
 }
 
-/// The particle state, material and coupling arrays on the device.
+/// The actuator couplings and the anchors of the current frame.
 #[derive(Debug)]
-struct DeviceState<T> {
-    x: CudaSlice<T>,
-    v: CudaSlice<T>,
-    f: CudaSlice<T>,
-    c: CudaSlice<T>,
-    mass: CudaSlice<T>,
-    volume: CudaSlice<T>,
-    mu: CudaSlice<T>,
-    lambda: CudaSlice<T>,
-    weights: CudaSlice<T>,
-    accel: CudaSlice<T>,
-    grid: CudaSlice<T>,
+struct CouplingBuffers<T> {
     row_start: CudaSlice<u32>,
     anchor: CudaSlice<u32>,
     rest_offset: CudaSlice<T>,
@@ -79,25 +59,6 @@ struct DeviceState<T> {
     anchor_x: CudaSlice<T>,
     anchor_end: CudaSlice<T>,
     anchor_v: CudaSlice<T>,
-    failure: CudaSlice<u64>,
-    /// The cell sort of P2G (sort.cu): each particle's cell key and rank
-    /// in its cell, the particles per key (scanned into starts), the
-    /// scan's chunk sums, and the slots in key order.
-    keys: CudaSlice<u32>,
-    ranks: CudaSlice<u32>,
-    counts: CudaSlice<u32>,
-    chunk_sums: CudaSlice<u32>,
-    order: CudaSlice<u32>,
-}
-
-/// Cells per block edge of the sort keys (sort.cu's SORT_BLOCK).
-const SORT_BLOCK: usize = 4;
-/// Values one block of the scan handles (sort.cu's SCAN_THREADS).
-const SCAN_THREADS: usize = 1024;
-
-/// How many sort keys a grid of `res`³ cells has.
-fn sort_key_count(res: usize) -> usize {
-    res.div_ceil(SORT_BLOCK).pow(3) * SORT_BLOCK.pow(3)
 }
 
 /// An MPM world advanced on a GPU: [`World`]'s frames and substeps with
@@ -107,7 +68,13 @@ pub struct CudaWorld<T: DeviceReal> {
     host: World<T>,
     device: Arc<CudaDevice>,
     kernels: Kernels,
-    state: DeviceState<T>,
+    pub(crate) particles: ParticleBuffers<T>,
+    pub(crate) material: MaterialBuffers<T>,
+    pub(crate) sort: SortBuffers,
+    accel: CudaSlice<T>,
+    pub(crate) grid: CudaSlice<T>,
+    couplings: CouplingBuffers<T>,
+    failure: CudaSlice<u64>,
     /// Couplings on the device (the host's count when uploaded).
     couplings_on_device: usize,
     /// Whether the host world's particle state lags the device's.
@@ -115,6 +82,8 @@ pub struct CudaWorld<T: DeviceReal> {
     /// Seconds per stage, when timing is on (each launch then waits for
     /// the GPU, so the substep runs slower than untimed).
     stage_seconds: Option<StageSeconds>,
+    /// The adjoint's buffers, once a backward pass has run.
+    pub(crate) adjoint: Option<AdjointBuffers<T>>,
 }
 
 impl<T: DeviceReal> CudaWorld<T> {
@@ -128,53 +97,50 @@ impl<T: DeviceReal> CudaWorld<T> {
         let res = world.config().grid_res;
         let p = world.slot_particles();
         let m = world.slot_material();
-        let state = DeviceState {
+        let particles = ParticleBuffers {
             x: stream.clone_htod(&flat(&p.x))?,
             v: stream.clone_htod(&flat(&p.v))?,
             f: stream.clone_htod(&flat(&p.f))?,
             c: stream.clone_htod(&flat(&p.c))?,
+        };
+        let material = MaterialBuffers {
             mass: stream.clone_htod(&p.mass)?,
             volume: stream.clone_htod(&p.volume)?,
             mu: stream.clone_htod(&m.mu)?,
             lambda: stream.clone_htod(&m.lambda)?,
-            weights: stream.clone_htod(
-                &m.expert_weights
-                    .iter()
-                    .flatten()
-                    .copied()
-                    .collect::<Vec<T>>(),
-            )?,
-            accel: stream.alloc_zeros(3 * n)?,
-            grid: stream.alloc_zeros(4 * res * res * res)?,
+            weights: stream.clone_htod(&flat_weights(&m.expert_weights))?,
+        };
+        let couplings = CouplingBuffers {
             row_start: stream.alloc_zeros(n + 1)?,
             anchor: stream.alloc_zeros(1)?,
             rest_offset: stream.alloc_zeros(3)?,
             anchor_x: stream.alloc_zeros(3)?,
             anchor_end: stream.alloc_zeros(3)?,
             anchor_v: stream.alloc_zeros(3)?,
-            failure: stream.clone_htod(&[NO_FAILURE])?,
-            keys: stream.alloc_zeros(n)?,
-            ranks: stream.alloc_zeros(n)?,
-            counts: stream.alloc_zeros(sort_key_count(res))?,
-            chunk_sums: stream.alloc_zeros(sort_key_count(res).div_ceil(SCAN_THREADS))?,
-            order: stream.alloc_zeros(n)?,
         };
         let mut world = Self {
             host: world,
-            device,
             kernels,
-            state,
+            particles,
+            material,
+            sort: SortBuffers::new(&stream, n, res)?,
+            accel: stream.alloc_zeros(3 * n)?,
+            grid: stream.alloc_zeros(4 * res * res * res)?,
+            couplings,
+            failure: stream.clone_htod(&[NO_FAILURE])?,
+            device,
             couplings_on_device: 0,
             host_stale: false,
             stage_seconds: None,
+            adjoint: None,
         };
         world.upload_couplings()?;
         Ok(world)
     }
 
     /// Starts (or stops) timing each stage: every launch then waits for
-    /// the GPU. P2G's time includes the stress, the grid update's the
-    /// clearing of the grid.
+    /// the GPU. P2G's time includes the stress and the clearing of the
+    /// grid; the sort's is `schedule`.
     pub fn time_stages(&mut self, on: bool) {
         self.stage_seconds = on.then(StageSeconds::default);
     }
@@ -232,12 +198,20 @@ impl<T: DeviceReal> CudaWorld<T> {
 
     /// Positions in the caller's particle order, metres.
     pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, CudaError> {
-        let x = self.stream().clone_dtoh(&self.state.x)?;
+        let x = self.stream().clone_dtoh(&self.particles.x)?;
         let mut out = vec![[0.0; 3]; self.particle_count()];
         for (slot, &id) in self.host.id_of_slot().iter().enumerate() {
             out[id as usize] = [0, 1, 2].map(|a| x[3 * slot + a].to_f64());
         }
         Ok(out)
+    }
+
+    /// Positions in slot order (the world's internal order), from the
+    /// device alone.
+    pub fn slot_positions(&mut self) -> Result<Vec<Vec3<T>>, CudaError> {
+        Ok(unflat::<T, 3, 1>(
+            &self.stream().clone_dtoh(&self.particles.x)?,
+        ))
     }
 
     /// The full particle state in the caller's order.
@@ -251,7 +225,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             return Ok(());
         }
         let stream = self.device.stream().clone();
-        let s = &self.state;
+        let s = &self.particles;
         let (x, v, f, c) = (
             stream.clone_dtoh(&s.x)?,
             stream.clone_dtoh(&s.v)?,
@@ -271,17 +245,16 @@ impl<T: DeviceReal> CudaWorld<T> {
         let stream = self.device.stream().clone();
         let p = self.host.slot_particles();
         let m = self.host.slot_material();
-        let s = &mut self.state;
+        let (s, mb) = (&mut self.particles, &mut self.material);
         stream.memcpy_htod(&flat(&p.x), &mut s.x)?;
         stream.memcpy_htod(&flat(&p.v), &mut s.v)?;
         stream.memcpy_htod(&flat(&p.f), &mut s.f)?;
         stream.memcpy_htod(&flat(&p.c), &mut s.c)?;
-        stream.memcpy_htod(&p.mass, &mut s.mass)?;
-        stream.memcpy_htod(&p.volume, &mut s.volume)?;
-        stream.memcpy_htod(&m.mu, &mut s.mu)?;
-        stream.memcpy_htod(&m.lambda, &mut s.lambda)?;
-        let weights: Vec<T> = m.expert_weights.iter().flatten().copied().collect();
-        stream.memcpy_htod(&weights, &mut s.weights)?;
+        stream.memcpy_htod(&p.mass, &mut mb.mass)?;
+        stream.memcpy_htod(&p.volume, &mut mb.volume)?;
+        stream.memcpy_htod(&m.mu, &mut mb.mu)?;
+        stream.memcpy_htod(&m.lambda, &mut mb.lambda)?;
+        stream.memcpy_htod(&flat_weights(&m.expert_weights), &mut mb.weights)?;
         Ok(())
     }
 
@@ -294,20 +267,24 @@ impl<T: DeviceReal> CudaWorld<T> {
         }
         let stream = self.device.stream().clone();
         let rest = flat(rest);
-        self.state.row_start = stream.clone_htod(row_start)?;
-        self.state.anchor = stream.clone_htod(anchor)?;
-        self.state.rest_offset = stream.clone_htod(&rest)?;
+        self.couplings.row_start = stream.clone_htod(row_start)?;
+        self.couplings.anchor = stream.clone_htod(anchor)?;
+        self.couplings.rest_offset = stream.clone_htod(&rest)?;
         self.couplings_on_device = anchor.len();
         Ok(())
     }
 
-    fn kernel_consts(&self) -> KernelConsts<T> {
+    pub(crate) fn kernel_consts(&self) -> KernelConsts<T> {
         KernelConsts::new(
             self.host.consts(),
             self.host.is_pure_neo_hookean(),
             &self.host.actuators().config,
             self.couplings_on_device > 0,
         )
+    }
+
+    pub(crate) fn kernels(&self) -> &Kernels {
+        &self.kernels
     }
 
     /// Advances one video frame while the anchors move linearly from
@@ -319,7 +296,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         active: &[bool],
     ) -> Result<(), CudaError> {
         let grasp_positions = if self.host.actuators().grasp_pending(active) {
-            let x = self.stream().clone_dtoh(&self.state.x)?;
+            let x = self.stream().clone_dtoh(&self.particles.x)?;
             Some(unflat::<T, 3, 1>(&x))
         } else {
             None
@@ -343,9 +320,9 @@ impl<T: DeviceReal> CudaWorld<T> {
                 starts.extend(flat(&at));
             }
             let stream = self.device.stream().clone();
-            self.state.anchor_x = stream.clone_htod(&starts)?;
-            self.state.anchor_end = stream.clone_htod(&ends)?;
-            self.state.anchor_v = stream.clone_htod(&flat(&path.velocity))?;
+            self.couplings.anchor_x = stream.clone_htod(&starts)?;
+            self.couplings.anchor_end = stream.clone_htod(&ends)?;
+            self.couplings.anchor_v = stream.clone_htod(&flat(&path.velocity))?;
         }
         let k = self.kernel_consts();
         let anchors = anchors_from.len();
@@ -391,130 +368,60 @@ impl<T: DeviceReal> CudaWorld<T> {
         let stream = self.device.stream().clone();
         let n = self.particle_count();
         let n_i32 = n as i32;
-        let s = &mut self.state;
-        let per_particle = launch_for(n);
-        let has_accel: i32 = anchor_offset.is_some() as i32;
+        let launcher = Launcher {
+            stream: &stream,
+            kernels: &self.kernels,
+            k,
+            n,
+            res: self.host.config().grid_res,
+        };
+        let c = &self.couplings;
+        let p = &mut self.particles;
         let mut laps = Laps::new(&stream, self.stage_seconds.as_mut());
         if let Some(offset) = anchor_offset {
-            let anchor_x = s.anchor_x.slice(offset..);
+            let anchor_x = c.anchor_x.slice(offset..);
             let mut launch = stream.launch_builder(&self.kernels.actuator_accel);
             launch
                 .arg(k)
                 .arg(&n_i32)
-                .arg(&s.x)
-                .arg(&s.v)
-                .arg(&s.row_start)
-                .arg(&s.anchor)
-                .arg(&s.rest_offset)
+                .arg(&p.x)
+                .arg(&p.v)
+                .arg(&c.row_start)
+                .arg(&c.anchor)
+                .arg(&c.rest_offset)
                 .arg(&anchor_x)
-                .arg(&s.anchor_v)
-                .arg(&mut s.accel);
+                .arg(&c.anchor_v)
+                .arg(&mut self.accel);
             // SAFETY: the arguments match actuator_accel's signature and
             // every buffer holds what the launch shape indexes.
-            unsafe { launch.launch(per_particle) }?;
+            unsafe { launch.launch(launch_for(n)) }?;
             laps.lap(|s| &mut s.actuators)?;
         }
-        let res = self.host.config().grid_res;
-        let keys = sort_key_count(res);
-        let (keys_i32, chunks) = (keys as i32, keys.div_ceil(SCAN_THREADS));
-        let chunks_i32 = chunks as i32;
-        stream.memset_zeros(&mut s.counts)?;
-        let mut launch = stream.launch_builder(&self.kernels.cell_count);
-        launch
-            .arg(k)
-            .arg(&n_i32)
-            .arg(&s.x)
-            .arg(&mut s.keys)
-            .arg(&mut s.ranks)
-            .arg(&mut s.counts);
-        // SAFETY: as above, for cell_count (keys index `counts`, sized
-        // for every key of the grid).
-        unsafe { launch.launch(per_particle) }?;
-        let scan_block = |blocks: usize| LaunchConfig {
-            grid_dim: (blocks as u32, 1, 1),
-            block_dim: (SCAN_THREADS as u32, 1, 1),
-            shared_mem_bytes: 0,
-        };
-        let mut launch = stream.launch_builder(&self.kernels.scan_chunks);
-        launch
-            .arg(&mut s.counts)
-            .arg(&keys_i32)
-            .arg(&mut s.chunk_sums);
-        // SAFETY: as above, for scan_chunks (one block per chunk).
-        unsafe { launch.launch(scan_block(chunks)) }?;
-        let mut launch = stream.launch_builder(&self.kernels.scan_sums);
-        launch.arg(&mut s.chunk_sums).arg(&chunks_i32);
-        // SAFETY: as above, for scan_sums (one block).
-        unsafe { launch.launch(scan_block(1)) }?;
-        let mut launch = stream.launch_builder(&self.kernels.scatter_order);
-        launch
-            .arg(&n_i32)
-            .arg(&s.keys)
-            .arg(&s.ranks)
-            .arg(&s.counts)
-            .arg(&s.chunk_sums)
-            .arg(&mut s.order);
-        // SAFETY: as above, for scatter_order (starts + rank < n).
-        unsafe { launch.launch(per_particle) }?;
+        launcher.sort(&p.x, &mut self.sort)?;
         laps.lap(|s| &mut s.schedule)?;
-        stream.memset_zeros(&mut s.grid)?;
-        let mut launch = stream.launch_builder(&self.kernels.p2g);
-        launch
-            .arg(k)
-            .arg(&n_i32)
-            .arg(&s.order)
-            .arg(&s.keys)
-            .arg(&s.x)
-            .arg(&s.v)
-            .arg(&s.f)
-            .arg(&s.c)
-            .arg(&s.mass)
-            .arg(&s.volume)
-            .arg(&s.mu)
-            .arg(&s.lambda)
-            .arg(&s.weights)
-            .arg(&has_accel)
-            .arg(&s.accel)
-            .arg(&mut s.grid);
-        // SAFETY: as above, for p2g.
-        unsafe { launch.launch(per_particle) }?;
+        let accel = anchor_offset.map(|_| &self.accel);
+        launcher.p2g(&self.sort, p, &self.material, accel, &mut self.grid)?;
         laps.lap(|s| &mut s.p2g)?;
-        let mut launch = stream.launch_builder(&self.kernels.grid_update);
-        launch.arg(k).arg(&mut s.grid);
-        // SAFETY: as above, for grid_update (one thread per node).
-        unsafe { launch.launch(launch_for(res * res * res)) }?;
+        launcher.grid_update(&mut self.grid)?;
         laps.lap(|s| &mut s.grid_update)?;
-        let substep_i32 = substep as i32;
-        let mut launch = stream.launch_builder(&self.kernels.g2p);
-        launch
-            .arg(k)
-            .arg(&n_i32)
-            .arg(&substep_i32)
-            .arg(&s.grid)
-            .arg(&mut s.x)
-            .arg(&mut s.v)
-            .arg(&mut s.f)
-            .arg(&mut s.c)
-            .arg(&mut s.failure);
-        // SAFETY: as above, for g2p.
-        unsafe { launch.launch(per_particle) }?;
+        launcher.g2p(substep, &self.grid, p, &mut self.failure)?;
         laps.lap(|s| &mut s.g2p)?;
         if let Some(offset) = anchor_offset
             && self.host.actuators().config.mode == ActuatorMode::Rigid
         {
-            let anchor_end = s.anchor_end.slice(offset..);
+            let anchor_end = c.anchor_end.slice(offset..);
             let mut launch = stream.launch_builder(&self.kernels.enforce_rigid);
             launch
                 .arg(&n_i32)
-                .arg(&s.row_start)
-                .arg(&s.anchor)
-                .arg(&s.rest_offset)
+                .arg(&c.row_start)
+                .arg(&c.anchor)
+                .arg(&c.rest_offset)
                 .arg(&anchor_end)
-                .arg(&s.anchor_v)
-                .arg(&mut s.x)
-                .arg(&mut s.v);
+                .arg(&c.anchor_v)
+                .arg(&mut p.x)
+                .arg(&mut p.v);
             // SAFETY: as above, for enforce_rigid.
-            unsafe { launch.launch(per_particle) }?;
+            unsafe { launch.launch(launch_for(n)) }?;
             laps.lap(|s| &mut s.actuators)?;
         }
         Ok(())
@@ -524,11 +431,11 @@ impl<T: DeviceReal> CudaWorld<T> {
     /// failure into [`SimError::Diverged`].
     fn check_failure(&mut self) -> Result<(), CudaError> {
         let stream = self.device.stream().clone();
-        let key = stream.clone_dtoh(&self.state.failure)?[0];
+        let key = stream.clone_dtoh(&self.failure)?[0];
         if key == NO_FAILURE {
             return Ok(());
         }
-        stream.memcpy_htod(&[NO_FAILURE], &mut self.state.failure)?;
+        stream.memcpy_htod(&[NO_FAILURE], &mut self.failure)?;
         let slot = (key & (NOT_FINITE_BIT - 1)) as usize;
         let reason = if key & NOT_FINITE_BIT != 0 {
             "position or velocity not finite"
@@ -575,6 +482,11 @@ impl<'a> Laps<'a> {
         }
         Ok(())
     }
+}
+
+/// Expert weights as 3 scalars per particle.
+fn flat_weights<T: Real>(weights: &[[T; 3]]) -> Vec<T> {
+    weights.iter().flatten().copied().collect()
 }
 
 /// Refuses worlds using what the kernels do not have.

@@ -218,8 +218,244 @@ pub fn parity(particles: usize, frames: usize) -> Result<()> {
         passed &= parity_run::<f64>(&device, scene, particles, frames)?;
         passed &= parity_run::<f32>(&device, scene, particles, frames)?;
     }
+    let mut gradients = true;
+    for scene in [ParityScene::Hands, ParityScene::Plastic] {
+        gradients &= gradient_parity_run::<f64>(&device, scene, particles)?;
+        gradients &= gradient_parity_run::<f32>(&device, scene, particles)?;
+    }
     if !passed {
         bail!("the CUDA world differs from the CPU world beyond {POSITION_PARITY:e} of the domain");
     }
+    if !gradients {
+        bail!(
+            "a gradient of the CUDA adjoint differs from the CPU's (cosine below {GRADIENT_COSINE} or norm off by more than {GRADIENT_NORM})"
+        );
+    }
     Ok(())
+}
+
+/// Cosine and norm ratio (GPU over CPU) of two gradients.
+fn agreement(cpu: &[f64], gpu: &[f64]) -> (f64, f64) {
+    let dot: f64 = cpu.iter().zip(gpu).map(|(a, b)| a * b).sum();
+    let (na, nb) = (
+        cpu.iter().map(|a| a * a).sum::<f64>().sqrt(),
+        gpu.iter().map(|b| b * b).sum::<f64>().sqrt(),
+    );
+    if na == 0.0 && nb == 0.0 {
+        return (1.0, 1.0);
+    }
+    (
+        dot / (na * nb).max(f64::MIN_POSITIVE),
+        nb / na.max(f64::MIN_POSITIVE),
+    )
+}
+
+/// Gradient parity: the cosine at least this…
+const GRADIENT_COSINE: f64 = 0.999;
+/// …and the norm within this fraction of the CPU's.
+const GRADIENT_NORM: f64 = 0.01;
+
+/// Every group of a substep's adjoint as f64 vectors, by name.
+fn gradient_groups<T: DeviceReal>(
+    g: &dm_mpm::substep::SubstepGrads<T>,
+) -> Vec<(&'static str, Vec<f64>)> {
+    let v3 = |v: &[dm_mpm::real::Vec3<T>]| {
+        v.iter()
+            .flat_map(|a| a.iter().map(|c| c.to_f64()))
+            .collect::<Vec<f64>>()
+    };
+    let m3 = |m: &[dm_mpm::real::Mat3<T>]| {
+        m.iter()
+            .flat_map(|a| a.iter().map(|c| c.to_f64()))
+            .collect::<Vec<f64>>()
+    };
+    let s = |v: &[T]| v.iter().map(|c| c.to_f64()).collect::<Vec<f64>>();
+    vec![
+        ("x", v3(&g.state.x)),
+        ("v", v3(&g.state.v)),
+        ("F", m3(&g.state.f)),
+        ("C", m3(&g.state.c)),
+        ("mu", s(&g.mu)),
+        ("lambda", s(&g.lambda)),
+        (
+            "expert weights",
+            g.weights
+                .iter()
+                .flat_map(|w| w.map(|c| c.to_f64()))
+                .collect(),
+        ),
+        ("actuator accel", v3(&g.external_accel)),
+        (
+            "drag (summed)",
+            (0..2)
+                .map(|e| g.effects.iter().map(|p| p[e].to_f64()).sum())
+                .collect(),
+        ),
+        ("mass", s(&g.mass)),
+        ("gravity", g.gravity.iter().map(|c| c.to_f64()).collect()),
+        ("friction", vec![g.friction.to_f64()]),
+        ("damping factor", vec![g.damping_factor.to_f64()]),
+    ]
+}
+
+/// One substep's adjoint on both devices, at the state after the first
+/// frame of `scene`, with seeded upstream gradients; prints each group's
+/// agreement and returns whether all pass.
+fn gradient_parity_run<T: DeviceReal>(
+    device: &Arc<CudaDevice>,
+    scene: ParityScene,
+    particles: usize,
+) -> Result<bool> {
+    use dm_mpm::g2p_backward::ParticleGrads;
+    use dm_mpm::real::{Mat3, Vec3};
+    use dm_mpm::substep::{SubstepInputs, SubstepScratch, substep_backward};
+    let mut cpu = parity_world::<T>(scene, particles)?;
+    let (from, to, active) = parity_anchors(scene, 0);
+    cpu.step_frame(&from, &to, &active)?;
+    let mut gpu = CudaWorld::new(parity_world::<T>(scene, particles)?, device.clone())?;
+    gpu.step_frame(&from, &to, &active)?;
+    // The same state on both, and the next frame's first-substep forces.
+    let before = cpu.slot_particles().clone();
+    gpu.edit(|w| *w.slot_particles_mut() = before.clone())?;
+    let (from, to, _) = parity_anchors(scene, 1);
+    let frame_dt = cpu.config().dt * cpu.config().substeps_per_frame as f64;
+    let anchor_x: Vec<Vec3<T>> = from.iter().map(|&p| dm_mpm::real::vec3(p)).collect();
+    let anchor_v: Vec<Vec3<T>> = from
+        .iter()
+        .zip(&to)
+        .map(|(a, b)| dm_mpm::real::vec3([0, 1, 2].map(|i| (b[i] - a[i]) / frame_dt)))
+        .collect();
+    let n = before.len();
+    let mut accel = vec![Vec3::zeros(); n];
+    cpu.actuators()
+        .accelerations(&before.x, &before.v, &anchor_x, &anchor_v, &mut accel);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let mut r = || T::lit(rng.random::<f64>() - 0.5);
+    let grad_after = ParticleGrads {
+        x: (0..n).map(|_| Vec3::new(r(), r(), r())).collect(),
+        v: (0..n).map(|_| Vec3::new(r(), r(), r())).collect(),
+        f: (0..n).map(|_| Mat3::from_fn(|_, _| r())).collect(),
+        c: (0..n).map(|_| Mat3::from_fn(|_, _| r())).collect(),
+    };
+    let inputs = SubstepInputs {
+        material: cpu.slot_material(),
+        pure_neo_hookean: cpu.is_pure_neo_hookean(),
+        external_accel: Some(&accel),
+    };
+    let k = *cpu.consts();
+    let mut scratch = SubstepScratch::new(cpu.config().grid_res);
+    let want = substep_backward(&k, &inputs, &before, &grad_after, &mut scratch)?;
+    let got = gpu.substep_backward(&before, Some(&accel), &grad_after)?;
+    let precision = T::PRECISION.c_type();
+    let mut passed = true;
+    let mut worst = String::new();
+    for ((name, a), (_, b)) in gradient_groups(&want)
+        .into_iter()
+        .zip(gradient_groups(&got))
+    {
+        let (cosine, ratio) = agreement(&a, &b);
+        let ok = cosine >= GRADIENT_COSINE && (ratio - 1.0).abs() <= GRADIENT_NORM;
+        passed &= ok;
+        worst.push_str(&format!(
+            "{name} {cosine:.6}/{ratio:.5}{}; ",
+            if ok { "" } else { " FAIL" }
+        ));
+    }
+    println!("gradient parity {scene:?} {precision} (cosine/norm ratio): {worst}");
+    Ok(passed)
+}
+
+/// `dm-bench grad --device cuda`: forward and backward of one window of
+/// free substeps on the reference block (loss mean |x|² after it), the
+/// median of `repeats`; then the same window on the CPU for the gradients'
+/// agreement (dL/dE per particle and dL/dx at the window's start).
+pub fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize) -> Result<()> {
+    use dm_mpm::g2p_backward::ParticleGrads;
+    use dm_mpm::material_backward::lame_vjp;
+    use dm_mpm::scenes::bench_block_frames;
+    let (youngs, poisson) = (400.0f32, 0.2f32);
+    let device = CudaDevice::open(0)?;
+    let block = || {
+        bench_block_frames::<f32>(particles, grid, BenchExperts::NeoHookean, 0, window)
+            .context("building the benchmark block")
+    };
+    let upstream_of = |x: &[dm_mpm::real::Vec3<f32>]| {
+        let n = x.len() as f32;
+        let mut g = ParticleGrads::zeros(x.len());
+        for (g, x) in g.x.iter_mut().zip(x) {
+            *g = x * (2.0 / n);
+        }
+        g
+    };
+    let mut forward = Vec::new();
+    let mut total = Vec::new();
+    let mut result = None;
+    for repeat in 0..=repeats.max(1) {
+        let mut gpu = CudaWorld::new(block()?, device.clone())?;
+        device.stream().synchronize()?;
+        let start = Instant::now();
+        let tape = gpu.taped_substeps(window)?;
+        let forward_s = start.elapsed().as_secs_f64();
+        // The loss's gradient needs the window's last state (slot order).
+        let last = gpu.slot_positions()?;
+        let grads = gpu.backward_tape(&tape, &upstream_of(&last))?;
+        let total_s = start.elapsed().as_secs_f64();
+        if repeat > 0 {
+            forward.push(forward_s);
+            total.push(total_s);
+        }
+        let ids = gpu.host()?.id_of_slot().to_vec();
+        result = Some((grads, ids));
+    }
+    let (t, f) = (median_of(&mut total), median_of(&mut forward));
+    println!("grad_window_s {t:.5}");
+    eprintln!(
+        "# {particles} particles, grid {grid}^3, window {window} on {}: forward {f:.5} s, backward {:.5} s",
+        device.name(),
+        t - f
+    );
+    // The CPU's gradients of the same window (caller order).
+    let Some((grads, ids)) = result else {
+        bail!("no repetition ran");
+    };
+    let mut cpu = block()?;
+    let tape = cpu.step_frame_taped(&[], &[], &[], window)?;
+    let want = cpu.backward_frame(&tape, &upstream_of(&cpu.state().x))?;
+    let youngs_grad = |mu: &[f32], lambda: &[f32]| -> Vec<f64> {
+        mu.iter()
+            .zip(lambda)
+            .map(|(&gm, &gl)| f64::from(lame_vjp(youngs, poisson, gm, gl).0))
+            .collect()
+    };
+    let mut gpu_mu = vec![0.0f32; ids.len()];
+    let mut gpu_lambda = vec![0.0f32; ids.len()];
+    let mut gpu_x = vec![0.0f64; 3 * ids.len()];
+    for (slot, &id) in ids.iter().enumerate() {
+        gpu_mu[id as usize] = grads.mu[slot];
+        gpu_lambda[id as usize] = grads.lambda[slot];
+        for a in 0..3 {
+            gpu_x[3 * id as usize + a] = f64::from(grads.state.x[slot][a]);
+        }
+    }
+    let want_x: Vec<f64> = want
+        .state
+        .x
+        .iter()
+        .flat_map(|v| v.iter().map(|c| f64::from(*c)))
+        .collect();
+    let (cos_e, ratio_e) = agreement(
+        &youngs_grad(&want.mu, &want.lambda),
+        &youngs_grad(&gpu_mu, &gpu_lambda),
+    );
+    let (cos_x, ratio_x) = agreement(&want_x, &gpu_x);
+    println!(
+        "gradient agreement with the CPU (cosine / norm ratio): dL/dE {cos_e:.6} / {ratio_e:.5}, dL/dx0 {cos_x:.6} / {ratio_x:.5}"
+    );
+    Ok(())
+}
+
+/// Median of timings (upper median for even counts).
+fn median_of(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }

@@ -81,6 +81,8 @@ enum Command {
         /// Timed repetitions (the median is printed).
         #[arg(long, default_value_t = 5)]
         repeats: usize,
+        #[arg(long, value_enum, default_value_t = Device::Cpu)]
+        device: Device,
     },
     /// The PNPGD residual of one frame (method.md §5 sizes): forward, then
     /// the vector-Jacobian product, on the reference block's particles.
@@ -186,6 +188,14 @@ fn main() -> Result<()> {
             window,
             grid,
             repeats,
+            device: Device::Cuda,
+        } => cuda::grad_window(particles, window, grid, repeats)?,
+        Command::Grad {
+            particles,
+            window,
+            grid,
+            repeats,
+            device: Device::Cpu,
         } => grad_window(particles, window, grid, repeats)?,
         Command::Residual {
             particles,

@@ -1,0 +1,344 @@
+//! The adjoint of the substep on the device: each substep's forward grids
+//! recomputed from its input state, then the backward twins of G2P, the
+//! grid update and P2G with the stress (`kernels/*_backward.cu`).
+
+use crate::error::CudaError;
+use crate::launch::{Launcher, ParticleBuffers, launch_for};
+use crate::world::{CudaWorld, DeviceReal, flat, unflat};
+use cudarc::driver::{CudaSlice, CudaStream, PushKernelArg};
+use dm_mpm::g2p_backward::ParticleGrads;
+use dm_mpm::real::{Mat3, Vec3};
+use dm_mpm::state::Particles;
+use dm_mpm::substep::SubstepGrads;
+use std::sync::Arc;
+
+/// A state (or its adjoint) sent to the device.
+fn upload<T: DeviceReal>(
+    stream: &Arc<CudaStream>,
+    x: &[Vec3<T>],
+    v: &[Vec3<T>],
+    f: &[Mat3<T>],
+    c: &[Mat3<T>],
+) -> Result<ParticleBuffers<T>, CudaError> {
+    Ok(ParticleBuffers {
+        x: stream.clone_htod(&flat(x))?,
+        v: stream.clone_htod(&flat(v))?,
+        f: stream.clone_htod(&flat(f))?,
+        c: stream.clone_htod(&flat(c))?,
+    })
+}
+
+/// An adjoint brought back from the device.
+fn download<T: DeviceReal>(
+    stream: &Arc<CudaStream>,
+    grad: &ParticleBuffers<T>,
+) -> Result<ParticleGrads<T>, CudaError> {
+    Ok(ParticleGrads {
+        x: unflat::<T, 3, 1>(&stream.clone_dtoh(&grad.x)?),
+        v: unflat::<T, 3, 1>(&stream.clone_dtoh(&grad.v)?),
+        f: unflat::<T, 3, 3>(&stream.clone_dtoh(&grad.f)?),
+        c: unflat::<T, 3, 3>(&stream.clone_dtoh(&grad.c)?),
+    })
+}
+
+/// The adjoint's buffers: the grids, what G2P's adjoint scatters, and the
+/// parameters' adjoints summed over the substeps run backward.
+#[derive(Debug)]
+pub(crate) struct AdjointBuffers<T> {
+    grid_pre: CudaSlice<T>,
+    grad_u: CudaSlice<T>,
+    grad_pre: CudaSlice<T>,
+    bar_v: CudaSlice<T>,
+    bar_b: CudaSlice<T>,
+    /// Adjoint of the state entering the substep being run backward.
+    grad_in: ParticleBuffers<T>,
+    mu: CudaSlice<T>,
+    lambda: CudaSlice<T>,
+    weights: CudaSlice<T>,
+    accel: CudaSlice<T>,
+    effects: CudaSlice<T>,
+    mass: CudaSlice<T>,
+    damping: CudaSlice<T>,
+    /// Gravity xyz and floor friction.
+    params: CudaSlice<T>,
+}
+
+impl<T: DeviceReal> AdjointBuffers<T> {
+    fn new(stream: &Arc<CudaStream>, n: usize, res: usize) -> Result<Self, CudaError> {
+        let nodes = 4 * res * res * res;
+        Ok(Self {
+            grid_pre: stream.alloc_zeros(nodes)?,
+            grad_u: stream.alloc_zeros(nodes)?,
+            grad_pre: stream.alloc_zeros(nodes)?,
+            bar_v: stream.alloc_zeros(3 * n)?,
+            bar_b: stream.alloc_zeros(9 * n)?,
+            grad_in: ParticleBuffers::zeros(stream, n)?,
+            mu: stream.alloc_zeros(n)?,
+            lambda: stream.alloc_zeros(n)?,
+            weights: stream.alloc_zeros(3 * n)?,
+            accel: stream.alloc_zeros(3 * n)?,
+            effects: stream.alloc_zeros(2 * n)?,
+            mass: stream.alloc_zeros(n)?,
+            damping: stream.alloc_zeros(n)?,
+            params: stream.alloc_zeros(4)?,
+        })
+    }
+
+    /// Zeroes the parameters' sums (the start of a window).
+    fn clear_sums(&mut self, stream: &Arc<CudaStream>) -> Result<(), CudaError> {
+        stream.memset_zeros(&mut self.mu)?;
+        stream.memset_zeros(&mut self.lambda)?;
+        stream.memset_zeros(&mut self.weights)?;
+        stream.memset_zeros(&mut self.effects)?;
+        stream.memset_zeros(&mut self.mass)?;
+        stream.memset_zeros(&mut self.damping)?;
+        stream.memset_zeros(&mut self.params)?;
+        Ok(())
+    }
+}
+
+/// The states entering each recorded substep, on the device.
+#[derive(Debug)]
+pub struct DeviceTape<T> {
+    states: Vec<ParticleBuffers<T>>,
+}
+
+impl<T> DeviceTape<T> {
+    /// Substeps recorded.
+    pub fn len(&self) -> usize {
+        self.states.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.states.is_empty()
+    }
+}
+
+/// Adjoints of a window of free substeps with respect to the state that
+/// entered it and to the per-particle Lamé parameters (slot order).
+#[derive(Clone, Debug)]
+pub struct WindowGrads<T> {
+    pub state: ParticleGrads<T>,
+    pub mu: Vec<T>,
+    pub lambda: Vec<T>,
+}
+
+impl<T: DeviceReal> CudaWorld<T> {
+    fn adjoint_buffers(&mut self) -> Result<AdjointBuffers<T>, CudaError> {
+        match self.adjoint.take() {
+            Some(buffers) => Ok(buffers),
+            None => AdjointBuffers::new(
+                self.device().stream(),
+                self.particle_count(),
+                self.config().grid_res,
+            ),
+        }
+    }
+
+    /// Adjoint of one substep at the state `before` (slot order, as the
+    /// world stores it) with the actuator accelerations `external_accel`,
+    /// given the adjoint of the state after it: the device's
+    /// [`dm_mpm::substep::substep_backward`].
+    pub fn substep_backward(
+        &mut self,
+        before: &Particles<T>,
+        external_accel: Option<&[Vec3<T>]>,
+        grad_after: &ParticleGrads<T>,
+    ) -> Result<SubstepGrads<T>, CudaError> {
+        let stream = self.device().stream().clone();
+        let n = self.particle_count();
+        let state = upload(&stream, &before.x, &before.v, &before.f, &before.c)?;
+        let mut grad = upload(
+            &stream,
+            &grad_after.x,
+            &grad_after.v,
+            &grad_after.f,
+            &grad_after.c,
+        )?;
+        let accel = match external_accel {
+            Some(a) => Some(stream.clone_htod(&flat(a))?),
+            None => None,
+        };
+        let mut buffers = self.adjoint_buffers()?;
+        buffers.clear_sums(&stream)?;
+        let result = self.run_substep_backward(&state, accel.as_ref(), &grad, &mut buffers);
+        let out = result.and_then(|()| {
+            std::mem::swap(&mut grad, &mut buffers.grad_in);
+            let state = download(&stream, &grad)?;
+            let params = stream.clone_dtoh(&buffers.params)?;
+            let sum = |values: Vec<T>| values.into_iter().fold(T::zero(), |a, b| a + b);
+            let weights = stream.clone_dtoh(&buffers.weights)?;
+            let effects = stream.clone_dtoh(&buffers.effects)?;
+            Ok(SubstepGrads {
+                state,
+                mu: stream.clone_dtoh(&buffers.mu)?,
+                lambda: stream.clone_dtoh(&buffers.lambda)?,
+                weights: weights
+                    .chunks_exact(3)
+                    .map(|w| [w[0], w[1], w[2]])
+                    .collect(),
+                external_accel: if accel.is_some() {
+                    unflat::<T, 3, 1>(&stream.clone_dtoh(&buffers.accel)?)
+                } else {
+                    vec![Vec3::zeros(); n]
+                },
+                effects: effects.chunks_exact(2).map(|e| [e[0], e[1]]).collect(),
+                viscosity: T::zero(),
+                gravity: Vec3::new(params[0], params[1], params[2]),
+                friction: params[3],
+                damping_factor: sum(stream.clone_dtoh(&buffers.damping)?),
+                mass: stream.clone_dtoh(&buffers.mass)?,
+            })
+        });
+        self.adjoint = Some(buffers);
+        out
+    }
+
+    /// Runs `count` free substeps (no anchors), recording the state
+    /// entering each on the device.
+    pub fn taped_substeps(&mut self, count: usize) -> Result<DeviceTape<T>, CudaError> {
+        let stream = self.device().stream().clone();
+        let mut states = Vec::with_capacity(count);
+        for _ in 0..count {
+            states.push(self.particles.duplicate(&stream)?);
+            self.substeps_unchecked(1)?;
+        }
+        self.finish()?;
+        Ok(DeviceTape { states })
+    }
+
+    /// Adjoint of the substeps recorded in `tape`, given the adjoint of
+    /// the state after the last (slot order).
+    pub fn backward_tape(
+        &mut self,
+        tape: &DeviceTape<T>,
+        grad_after: &ParticleGrads<T>,
+    ) -> Result<WindowGrads<T>, CudaError> {
+        let stream = self.device().stream().clone();
+        let mut grad = upload(
+            &stream,
+            &grad_after.x,
+            &grad_after.v,
+            &grad_after.f,
+            &grad_after.c,
+        )?;
+        let mut buffers = self.adjoint_buffers()?;
+        buffers.clear_sums(&stream)?;
+        let mut result = Ok(());
+        for state in tape.states.iter().rev() {
+            result = self.run_substep_backward(state, None, &grad, &mut buffers);
+            if result.is_err() {
+                break;
+            }
+            std::mem::swap(&mut grad, &mut buffers.grad_in);
+        }
+        let out = result.and_then(|()| {
+            Ok(WindowGrads {
+                state: download(&stream, &grad)?,
+                mu: stream.clone_dtoh(&buffers.mu)?,
+                lambda: stream.clone_dtoh(&buffers.lambda)?,
+            })
+        });
+        self.adjoint = Some(buffers);
+        out
+    }
+
+    /// Launches the adjoint of one substep entered at `state`: writes the
+    /// adjoint of `state` into `buffers.grad_in` given `grad_after`, and
+    /// adds the parameters' adjoints to the sums.
+    fn run_substep_backward(
+        &mut self,
+        state: &ParticleBuffers<T>,
+        accel: Option<&CudaSlice<T>>,
+        grad_after: &ParticleBuffers<T>,
+        b: &mut AdjointBuffers<T>,
+    ) -> Result<(), CudaError> {
+        let stream = self.device().stream().clone();
+        let k = self.kernel_consts();
+        let n = self.particle_count();
+        let n_i32 = n as i32;
+        let res = self.config().grid_res;
+        let kernels = self.kernels().clone();
+        let launcher = Launcher {
+            stream: &stream,
+            kernels: &kernels,
+            k: &k,
+            n,
+            res,
+        };
+        // The forward grids of this substep, recomputed.
+        launcher.sort(&state.x, &mut self.sort)?;
+        launcher.p2g(&self.sort, state, &self.material, accel, &mut b.grid_pre)?;
+        stream.memcpy_dtod(&b.grid_pre, &mut self.grid)?;
+        launcher.grid_update(&mut self.grid)?;
+        let per_particle = launch_for(n);
+        let mut launch = stream.launch_builder(&kernels.g2p_backward_gather);
+        launch
+            .arg(&k)
+            .arg(&n_i32)
+            .arg(&self.grid)
+            .arg(&state.x)
+            .arg(&state.f)
+            .arg(&grad_after.x)
+            .arg(&grad_after.v)
+            .arg(&grad_after.f)
+            .arg(&grad_after.c)
+            .arg(&mut b.grad_in.x)
+            .arg(&mut b.grad_in.f)
+            .arg(&mut b.bar_v)
+            .arg(&mut b.bar_b)
+            .arg(&mut b.damping);
+        // SAFETY: the arguments match g2p_backward_gather's signature; every
+        // per-particle buffer holds n entries, the grid res³ nodes.
+        unsafe { launch.launch(per_particle) }?;
+        launcher.scatter_velocity_adjoint(
+            &self.sort,
+            &state.x,
+            &b.bar_v,
+            &b.bar_b,
+            &mut b.grad_u,
+        )?;
+        let mut launch = stream.launch_builder(&kernels.grid_update_backward);
+        launch
+            .arg(&k)
+            .arg(&b.grid_pre)
+            .arg(&b.grad_u)
+            .arg(&mut b.grad_pre)
+            .arg(&mut b.params);
+        // SAFETY: as above, one thread per node.
+        unsafe { launch.launch(launch_for(res * res * res)) }?;
+        let has_accel = accel.is_some() as i32;
+        // Never read without an acceleration.
+        let accel = accel.unwrap_or(&state.x);
+        let m = &self.material;
+        let mut launch = stream.launch_builder(&kernels.p2g_backward);
+        launch
+            .arg(&k)
+            .arg(&n_i32)
+            .arg(&state.x)
+            .arg(&state.v)
+            .arg(&state.f)
+            .arg(&state.c)
+            .arg(&m.mass)
+            .arg(&m.volume)
+            .arg(&m.mu)
+            .arg(&m.lambda)
+            .arg(&m.weights)
+            .arg(&has_accel)
+            .arg(accel)
+            .arg(&b.grad_pre)
+            .arg(&mut b.grad_in.x)
+            .arg(&mut b.grad_in.v)
+            .arg(&mut b.grad_in.f)
+            .arg(&mut b.grad_in.c)
+            .arg(&mut b.mu)
+            .arg(&mut b.lambda)
+            .arg(&mut b.weights)
+            .arg(&mut b.accel)
+            .arg(&mut b.effects)
+            .arg(&mut b.mass);
+        // SAFETY: as above, for p2g_backward.
+        unsafe { launch.launch(per_particle) }?;
+        Ok(())
+    }
+}

@@ -18,7 +18,7 @@ extern "C" __global__ void g2p_backward_gather(
     v3 x = v3_load(xs + 3 * p);
     m3 f = m3_load(fs + 9 * p);
     Stencil st = make_stencil(k, x);
-    Moments mo;
+    Moments<3> mo;
     gather_moments(k, st, grid, mo);
     real apic = (real)4 * k.inv_dx * k.inv_dx;
     v3 v_tilde = lanes_xyz(mo.sum);

@@ -46,7 +46,7 @@ __device__ __forceinline__ void particle_impulse(
 // 3 of the 27 stencil nodes of each valid thread's particle, threads in
 // cell order (`key`: the cell; invalid threads are at the end). Every
 // thread of the block must call it.
-__device__ void scatter_sorted(
+__device__ __forceinline__ void scatter_sorted(
     const Consts& k, bool valid, const Stencil& st, unsigned key,
     const v3& momentum, const m3& affine, real m, real* __restrict__ grid)
 {

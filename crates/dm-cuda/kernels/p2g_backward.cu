@@ -30,7 +30,7 @@ extern "C" __global__ void p2g_backward(
     v3 v = v3_load(vs + 3 * p);
     m3 f = m3_load(fs + 9 * p);
     Stencil st = make_stencil(k, x);
-    Moments mo;
+    Moments<4> mo;
     gather_moments(k, st, grad_pre, mo);
     // The scatter's adjoint.
     v3 grad_q = lanes_xyz(mo.sum);

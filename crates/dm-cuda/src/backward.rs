@@ -3,7 +3,7 @@
 //! grid update and P2G with the stress (`kernels/*_backward.cu`).
 
 use crate::error::CudaError;
-use crate::launch::{Launcher, ParticleBuffers, launch_for};
+use crate::launch::{Laps, Launcher, ParticleBuffers, launch_for};
 use crate::world::{CudaWorld, DeviceReal, flat, unflat};
 use cudarc::driver::{CudaSlice, CudaStream, PushKernelArg};
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -12,7 +12,9 @@ use dm_mpm::state::Particles;
 use dm_mpm::substep::SubstepGrads;
 use std::sync::Arc;
 
-/// A state (or its adjoint) sent to the device.
+/// A state (or its adjoint) sent to the device; an all-zero array (a
+/// loss on positions alone leaves v, F and C's adjoints zero) is cleared
+/// there instead of copied.
 fn upload<T: DeviceReal>(
     stream: &Arc<CudaStream>,
     x: &[Vec3<T>],
@@ -20,11 +22,20 @@ fn upload<T: DeviceReal>(
     f: &[Mat3<T>],
     c: &[Mat3<T>],
 ) -> Result<ParticleBuffers<T>, CudaError> {
+    fn send<T: DeviceReal, const R: usize, const C: usize>(
+        stream: &Arc<CudaStream>,
+        values: &[nalgebra::SMatrix<T, R, C>],
+    ) -> Result<CudaSlice<T>, CudaError> {
+        if values.iter().all(|m| m.iter().all(|c| *c == T::zero())) {
+            return Ok(stream.alloc_zeros(R * C * values.len())?);
+        }
+        Ok(stream.clone_htod(&flat(values))?)
+    }
     Ok(ParticleBuffers {
-        x: stream.clone_htod(&flat(x))?,
-        v: stream.clone_htod(&flat(v))?,
-        f: stream.clone_htod(&flat(f))?,
-        c: stream.clone_htod(&flat(c))?,
+        x: send(stream, x)?,
+        v: send(stream, v)?,
+        f: send(stream, f)?,
+        c: send(stream, c)?,
     })
 }
 
@@ -97,6 +108,20 @@ impl<T: DeviceReal> AdjointBuffers<T> {
     }
 }
 
+/// Seconds per stage of the adjoint (each stage waited for).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct AdjointSeconds {
+    /// The substep's forward grids recomputed: sort, P2G, grid update.
+    pub recompute: f64,
+    /// G2P's adjoint, pass 1 (per particle).
+    pub g2p_gather: f64,
+    /// G2P's adjoint, pass 2 (the scatter of ū).
+    pub g2p_scatter: f64,
+    pub grid_update: f64,
+    /// P2G's and the stress's adjoint.
+    pub p2g: f64,
+}
+
 /// The states entering each recorded substep, on the device.
 #[derive(Debug)]
 pub struct DeviceTape<T> {
@@ -114,11 +139,12 @@ impl<T> DeviceTape<T> {
     }
 }
 
-/// Adjoints of a window of free substeps with respect to the state that
-/// entered it and to the per-particle Lamé parameters (slot order).
+/// Adjoints of a window of free substeps with respect to the per-particle
+/// Lamé parameters and, when asked for, the state that entered it (slot
+/// order).
 #[derive(Clone, Debug)]
 pub struct WindowGrads<T> {
-    pub state: ParticleGrads<T>,
+    pub state: Option<ParticleGrads<T>>,
     pub mu: Vec<T>,
     pub lambda: Vec<T>,
 }
@@ -208,11 +234,13 @@ impl<T: DeviceReal> CudaWorld<T> {
     }
 
     /// Adjoint of the substeps recorded in `tape`, given the adjoint of
-    /// the state after the last (slot order).
+    /// the state after the last (slot order); the state's adjoint comes
+    /// back from the device only `with_state`.
     pub fn backward_tape(
         &mut self,
         tape: &DeviceTape<T>,
         grad_after: &ParticleGrads<T>,
+        with_state: bool,
     ) -> Result<WindowGrads<T>, CudaError> {
         let stream = self.device().stream().clone();
         let mut grad = upload(
@@ -234,7 +262,11 @@ impl<T: DeviceReal> CudaWorld<T> {
         }
         let out = result.and_then(|()| {
             Ok(WindowGrads {
-                state: download(&stream, &grad)?,
+                state: if with_state {
+                    Some(download(&stream, &grad)?)
+                } else {
+                    None
+                },
                 mu: stream.clone_dtoh(&buffers.mu)?,
                 lambda: stream.clone_dtoh(&buffers.lambda)?,
             })
@@ -266,11 +298,13 @@ impl<T: DeviceReal> CudaWorld<T> {
             n,
             res,
         };
+        let mut laps = Laps::new(&stream, self.adjoint_seconds.as_mut());
         // The forward grids of this substep, recomputed.
         launcher.sort(&state.x, &mut self.sort)?;
         launcher.p2g(&self.sort, state, &self.material, accel, &mut b.grid_pre)?;
         stream.memcpy_dtod(&b.grid_pre, &mut self.grid)?;
         launcher.grid_update(&mut self.grid)?;
+        laps.lap(|s| &mut s.recompute)?;
         let per_particle = launch_for(n);
         let mut launch = stream.launch_builder(&kernels.g2p_backward_gather);
         launch
@@ -291,6 +325,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         // SAFETY: the arguments match g2p_backward_gather's signature; every
         // per-particle buffer holds n entries, the grid res³ nodes.
         unsafe { launch.launch(per_particle) }?;
+        laps.lap(|s| &mut s.g2p_gather)?;
         launcher.scatter_velocity_adjoint(
             &self.sort,
             &state.x,
@@ -298,6 +333,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             &b.bar_b,
             &mut b.grad_u,
         )?;
+        laps.lap(|s| &mut s.g2p_scatter)?;
         let mut launch = stream.launch_builder(&kernels.grid_update_backward);
         launch
             .arg(&k)
@@ -307,6 +343,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             .arg(&mut b.params);
         // SAFETY: as above, one thread per node.
         unsafe { launch.launch(launch_for(res * res * res)) }?;
+        laps.lap(|s| &mut s.grid_update)?;
         let has_accel = accel.is_some() as i32;
         // Never read without an acceleration.
         let accel = accel.unwrap_or(&state.x);
@@ -339,6 +376,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             .arg(&mut b.mass);
         // SAFETY: as above, for p2g_backward.
         unsafe { launch.launch(per_particle) }?;
+        laps.lap(|s| &mut s.p2g)?;
         Ok(())
     }
 }

@@ -8,6 +8,7 @@ use crate::error::CudaError;
 use crate::world::DeviceReal;
 use cudarc::driver::{CudaSlice, CudaStream, LaunchConfig, PushKernelArg};
 use std::sync::Arc;
+use std::time::Instant;
 
 const BLOCK_THREADS: u32 = 256;
 
@@ -256,6 +257,38 @@ impl<T: DeviceReal> Launcher<'_, T> {
             .arg(grad_u);
         // SAFETY: as above, for g2p_backward_scatter.
         unsafe { launch.launch(launch_for(self.n)) }?;
+        Ok(())
+    }
+}
+
+/// A stopwatch adding each stage's time when timing is on (waiting for
+/// the GPU at each lap).
+pub(crate) struct Laps<'a, S> {
+    stream: &'a CudaStream,
+    totals: Option<&'a mut S>,
+    clock: Instant,
+}
+
+impl<'a, S> Laps<'a, S> {
+    pub(crate) fn new(stream: &'a CudaStream, totals: Option<&'a mut S>) -> Self {
+        if totals.is_some() {
+            // Earlier work is not this substep's.
+            let _ = stream.synchronize();
+        }
+        Self {
+            stream,
+            totals,
+            clock: Instant::now(),
+        }
+    }
+
+    pub(crate) fn lap(&mut self, stage: fn(&mut S) -> &mut f64) -> Result<(), CudaError> {
+        if let Some(totals) = self.totals.as_deref_mut() {
+            self.stream.synchronize()?;
+            let now = Instant::now();
+            *stage(totals) += (now - self.clock).as_secs_f64();
+            self.clock = now;
+        }
         Ok(())
     }
 }

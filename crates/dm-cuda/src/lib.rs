@@ -16,7 +16,7 @@ pub mod kernels;
 mod launch;
 mod world;
 
-pub use backward::{DeviceTape, WindowGrads};
+pub use backward::{AdjointSeconds, DeviceTape, WindowGrads};
 pub use device::CudaDevice;
 pub use error::CudaError;
 pub use kernels::Precision;

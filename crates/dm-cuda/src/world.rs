@@ -1,18 +1,17 @@
 //! The MPM world with its particle state on a GPU.
 
-use crate::backward::AdjointBuffers;
+use crate::backward::{AdjointBuffers, AdjointSeconds};
 use crate::consts::KernelConsts;
 use crate::device::{CudaDevice, Kernels};
 use crate::error::CudaError;
 use crate::kernels::Precision;
-use crate::launch::{Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
+use crate::launch::{Laps, Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
 use cudarc::driver::{CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits};
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
 use dm_mpm::substep::StageSeconds;
 use dm_mpm::{ActuatorMode, Real, SimError, World};
 use std::sync::Arc;
-use std::time::Instant;
 
 /// A float type the kernels are compiled for.
 pub trait DeviceReal: Real + DeviceRepr + ValidAsZeroBits {
@@ -82,6 +81,8 @@ pub struct CudaWorld<T: DeviceReal> {
     /// Seconds per stage, when timing is on (each launch then waits for
     /// the GPU, so the substep runs slower than untimed).
     stage_seconds: Option<StageSeconds>,
+    /// The same for the adjoint's stages.
+    pub(crate) adjoint_seconds: Option<AdjointSeconds>,
     /// The adjoint's buffers, once a backward pass has run.
     pub(crate) adjoint: Option<AdjointBuffers<T>>,
 }
@@ -132,6 +133,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             couplings_on_device: 0,
             host_stale: false,
             stage_seconds: None,
+            adjoint_seconds: None,
             adjoint: None,
         };
         world.upload_couplings()?;
@@ -143,6 +145,12 @@ impl<T: DeviceReal> CudaWorld<T> {
     /// grid; the sort's is `schedule`.
     pub fn time_stages(&mut self, on: bool) {
         self.stage_seconds = on.then(StageSeconds::default);
+        self.adjoint_seconds = on.then(AdjointSeconds::default);
+    }
+
+    /// Seconds per stage of the adjoint since timing was turned on.
+    pub fn adjoint_seconds(&self) -> Option<AdjointSeconds> {
+        self.adjoint_seconds
     }
 
     /// Seconds per stage since timing was turned on.
@@ -449,38 +457,6 @@ impl<T: DeviceReal> CudaWorld<T> {
             reason: reason.into(),
         }
         .into())
-    }
-}
-
-/// A stopwatch adding each stage's time when timing is on (waiting for
-/// the GPU at each lap).
-struct Laps<'a> {
-    stream: &'a CudaStream,
-    totals: Option<&'a mut StageSeconds>,
-    clock: Instant,
-}
-
-impl<'a> Laps<'a> {
-    fn new(stream: &'a CudaStream, totals: Option<&'a mut StageSeconds>) -> Self {
-        if totals.is_some() {
-            // Earlier work is not this substep's.
-            let _ = stream.synchronize();
-        }
-        Self {
-            stream,
-            totals,
-            clock: Instant::now(),
-        }
-    }
-
-    fn lap(&mut self, stage: fn(&mut StageSeconds) -> &mut f64) -> Result<(), CudaError> {
-        if let Some(totals) = self.totals.as_deref_mut() {
-            self.stream.synchronize()?;
-            let now = Instant::now();
-            *stage(totals) += (now - self.clock).as_secs_f64();
-            self.clock = now;
-        }
-        Ok(())
     }
 }
 

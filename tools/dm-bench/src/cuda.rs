@@ -387,36 +387,57 @@ pub fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize)
         }
         g
     };
+    // One world: its buffers are allocated once, as in a fit; every
+    // repetition starts the window from the block's first state.
+    let first = block()?;
+    let start_state = first.slot_particles().clone();
+    let mut gpu = CudaWorld::new(first, device.clone())?;
     let mut forward = Vec::new();
     let mut total = Vec::new();
-    let mut result = None;
     for repeat in 0..=repeats.max(1) {
-        let mut gpu = CudaWorld::new(block()?, device.clone())?;
+        gpu.edit(|w| *w.slot_particles_mut() = start_state.clone())?;
         device.stream().synchronize()?;
         let start = Instant::now();
         let tape = gpu.taped_substeps(window)?;
         let forward_s = start.elapsed().as_secs_f64();
-        // The loss's gradient needs the window's last state (slot order).
+        // The loss's gradient needs the window's last positions.
         let last = gpu.slot_positions()?;
-        let grads = gpu.backward_tape(&tape, &upstream_of(&last))?;
+        gpu.backward_tape(&tape, &upstream_of(&last), false)?;
         let total_s = start.elapsed().as_secs_f64();
         if repeat > 0 {
             forward.push(forward_s);
             total.push(total_s);
         }
-        let ids = gpu.host()?.id_of_slot().to_vec();
-        result = Some((grads, ids));
     }
     let (t, f) = (median_of(&mut total), median_of(&mut forward));
     println!("grad_window_s {t:.5}");
+    // One more window with every stage waited for, its gradients kept.
+    gpu.edit(|w| *w.slot_particles_mut() = start_state.clone())?;
+    let tape = gpu.taped_substeps(window)?;
+    let last = gpu.slot_positions()?;
+    gpu.time_stages(true);
+    let grads = gpu.backward_tape(&tape, &upstream_of(&last), true)?;
+    let ids = gpu.host()?.id_of_slot().to_vec();
+    if let Some(s) = gpu.adjoint_seconds() {
+        let per = |x: f64| 1e3 * x / window as f64;
+        eprintln!(
+            "# adjoint ms per substep, each stage waited for: recompute (sort, P2G, grid update) {:.4}, \
+             G2P gather {:.4}, G2P scatter {:.4}, grid update {:.4}, P2G and stress {:.4}",
+            per(s.recompute),
+            per(s.g2p_gather),
+            per(s.g2p_scatter),
+            per(s.grid_update),
+            per(s.p2g)
+        );
+    }
     eprintln!(
         "# {particles} particles, grid {grid}^3, window {window} on {}: forward {f:.5} s, backward {:.5} s",
         device.name(),
         t - f
     );
     // The CPU's gradients of the same window (caller order).
-    let Some((grads, ids)) = result else {
-        bail!("no repetition ran");
+    let Some(state_grads) = grads.state else {
+        bail!("the window's state adjoint was not fetched");
     };
     let mut cpu = block()?;
     let tape = cpu.step_frame_taped(&[], &[], &[], window)?;
@@ -434,7 +455,7 @@ pub fn grad_window(particles: usize, window: usize, grid: usize, repeats: usize)
         gpu_mu[id as usize] = grads.mu[slot];
         gpu_lambda[id as usize] = grads.lambda[slot];
         for a in 0..3 {
-            gpu_x[3 * id as usize + a] = f64::from(grads.state.x[slot][a]);
+            gpu_x[3 * id as usize + a] = f64::from(state_grads.x[slot][a]);
         }
     }
     let want_x: Vec<f64> = want

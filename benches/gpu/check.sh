@@ -9,7 +9,9 @@
 #    particles, with its gradients against the CPU's;
 # 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
 #    the GPU (times and largest position difference), and the playground's
-#    frame with all the model's particles at its substeps on both.
+#    frame with all the model's particles at its substeps on both;
+# 4. with FIT_SCENE set (the demo's scene): the demo's fit on the GPU and
+#    on the CPU, their times and results.
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -52,6 +54,13 @@ if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
     for device in cuda cpu; do
         run "$BIN/dm-bench" play --model "$MODEL" --exact --device "$device" --frames 40
+    done
+fi
+if [ -n "${FIT_SCENE:-}" ]; then
+    mkdir -p "$OUT_DIR"
+    for device in cuda cpu; do
+        run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$device" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$device"
+        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit $device: %.1f s, E %.4g Pa, final loss %.5g' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final']))" "$OUT_DIR/fit-$device/fit_report.json"
     done
 fi
 exit $status

@@ -39,6 +39,22 @@ fn upload<T: DeviceReal>(
     })
 }
 
+/// An adjoint (slot order) sent to the device.
+pub(crate) fn upload_grads<T: DeviceReal>(
+    stream: &Arc<CudaStream>,
+    grad: &ParticleGrads<T>,
+) -> Result<ParticleBuffers<T>, CudaError> {
+    upload(stream, &grad.x, &grad.v, &grad.f, &grad.c)
+}
+
+/// An adjoint brought back from the device.
+pub(crate) fn download_grads<T: DeviceReal>(
+    stream: &Arc<CudaStream>,
+    grad: &ParticleBuffers<T>,
+) -> Result<ParticleGrads<T>, CudaError> {
+    download(stream, grad)
+}
+
 /// An adjoint brought back from the device.
 fn download<T: DeviceReal>(
     stream: &Arc<CudaStream>,
@@ -62,11 +78,12 @@ pub(crate) struct AdjointBuffers<T> {
     bar_v: CudaSlice<T>,
     bar_b: CudaSlice<T>,
     /// Adjoint of the state entering the substep being run backward.
-    grad_in: ParticleBuffers<T>,
+    pub(crate) grad_in: ParticleBuffers<T>,
     mu: CudaSlice<T>,
     lambda: CudaSlice<T>,
     weights: CudaSlice<T>,
-    accel: CudaSlice<T>,
+    /// Adjoint of the substep's actuator acceleration.
+    pub(crate) accel: CudaSlice<T>,
     effects: CudaSlice<T>,
     mass: CudaSlice<T>,
     damping: CudaSlice<T>,
@@ -95,8 +112,32 @@ impl<T: DeviceReal> AdjointBuffers<T> {
         })
     }
 
+    /// The parameters' sums brought back from the device.
+    pub(crate) fn download_sums(
+        &self,
+        stream: &Arc<CudaStream>,
+    ) -> Result<ParameterSums<T>, CudaError> {
+        let params = stream.clone_dtoh(&self.params)?;
+        let effects = stream.clone_dtoh(&self.effects)?;
+        let weights = stream.clone_dtoh(&self.weights)?;
+        let total = |values: Vec<T>| values.iter().map(|v| v.to_f64()).sum::<f64>();
+        Ok(ParameterSums {
+            mu: stream.clone_dtoh(&self.mu)?,
+            lambda: stream.clone_dtoh(&self.lambda)?,
+            weights: weights
+                .chunks_exact(3)
+                .map(|w| [w[0], w[1], w[2]])
+                .collect(),
+            mass: stream.clone_dtoh(&self.mass)?,
+            drag: [0, 1].map(|e| effects.iter().skip(e).step_by(2).map(|v| v.to_f64()).sum()),
+            gravity: [0, 1, 2].map(|a| params[a].to_f64()),
+            friction: params[3].to_f64(),
+            damping: total(stream.clone_dtoh(&self.damping)?),
+        })
+    }
+
     /// Zeroes the parameters' sums (the start of a window).
-    fn clear_sums(&mut self, stream: &Arc<CudaStream>) -> Result<(), CudaError> {
+    pub(crate) fn clear_sums(&mut self, stream: &Arc<CudaStream>) -> Result<(), CudaError> {
         stream.memset_zeros(&mut self.mu)?;
         stream.memset_zeros(&mut self.lambda)?;
         stream.memset_zeros(&mut self.weights)?;
@@ -106,6 +147,20 @@ impl<T: DeviceReal> AdjointBuffers<T> {
         stream.memset_zeros(&mut self.params)?;
         Ok(())
     }
+}
+
+/// The parameters' adjoints summed over the substeps run backward (slot
+/// order; the per-particle drag and damping shares summed).
+#[derive(Clone, Debug)]
+pub(crate) struct ParameterSums<T> {
+    pub mu: Vec<T>,
+    pub lambda: Vec<T>,
+    pub weights: Vec<[T; 3]>,
+    pub mass: Vec<T>,
+    pub drag: [f64; 2],
+    pub gravity: [f64; 3],
+    pub friction: f64,
+    pub damping: f64,
 }
 
 /// Seconds per stage of the adjoint (each stage waited for).
@@ -150,7 +205,7 @@ pub struct WindowGrads<T> {
 }
 
 impl<T: DeviceReal> CudaWorld<T> {
-    fn adjoint_buffers(&mut self) -> Result<AdjointBuffers<T>, CudaError> {
+    pub(crate) fn take_adjoint_buffers(&mut self) -> Result<AdjointBuffers<T>, CudaError> {
         match self.adjoint.take() {
             Some(buffers) => Ok(buffers),
             None => AdjointBuffers::new(
@@ -185,7 +240,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             Some(a) => Some(stream.clone_htod(&flat(a))?),
             None => None,
         };
-        let mut buffers = self.adjoint_buffers()?;
+        let mut buffers = self.take_adjoint_buffers()?;
         buffers.clear_sums(&stream)?;
         let result = self.run_substep_backward(&state, accel.as_ref(), &grad, &mut buffers);
         let out = result.and_then(|()| {
@@ -250,7 +305,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             &grad_after.f,
             &grad_after.c,
         )?;
-        let mut buffers = self.adjoint_buffers()?;
+        let mut buffers = self.take_adjoint_buffers()?;
         buffers.clear_sums(&stream)?;
         let mut result = Ok(());
         for state in tape.states.iter().rev() {
@@ -278,7 +333,7 @@ impl<T: DeviceReal> CudaWorld<T> {
     /// Launches the adjoint of one substep entered at `state`: writes the
     /// adjoint of `state` into `buffers.grad_in` given `grad_after`, and
     /// adds the parameters' adjoints to the sums.
-    fn run_substep_backward(
+    pub(crate) fn run_substep_backward(
         &mut self,
         state: &ParticleBuffers<T>,
         accel: Option<&CudaSlice<T>>,

@@ -32,6 +32,8 @@ pub(crate) struct Kernels {
     pub g2p_backward_scatter: CudaFunction,
     pub grid_update_backward: CudaFunction,
     pub p2g_backward: CudaFunction,
+    pub actuator_accel_backward: CudaFunction,
+    pub zero_coupled: CudaFunction,
 }
 
 impl CudaDevice {
@@ -100,6 +102,8 @@ impl CudaDevice {
             g2p_backward_scatter: module.load_function("g2p_backward_scatter")?,
             grid_update_backward: module.load_function("grid_update_backward")?,
             p2g_backward: module.load_function("p2g_backward")?,
+            actuator_accel_backward: module.load_function("actuator_accel_backward")?,
+            zero_coupled: module.load_function("zero_coupled")?,
         })
     }
 }

@@ -21,7 +21,7 @@ impl Precision {
 }
 
 /// The kernel files in the order they are concatenated into one unit.
-pub const FILES: [(&str, &str); 14] = [
+pub const FILES: [(&str, &str); 15] = [
     ("common.cuh", include_str!("../kernels/common.cuh")),
     ("svd.cuh", include_str!("../kernels/svd.cuh")),
     ("stress.cuh", include_str!("../kernels/stress.cuh")),
@@ -51,10 +51,14 @@ pub const FILES: [(&str, &str); 14] = [
         "p2g_backward.cu",
         include_str!("../kernels/p2g_backward.cu"),
     ),
+    (
+        "actuators_backward.cu",
+        include_str!("../kernels/actuators_backward.cu"),
+    ),
 ];
 
 /// Entry points every module has.
-pub const ENTRY_POINTS: [&str; 13] = [
+pub const ENTRY_POINTS: [&str; 15] = [
     "cell_count",
     "scan_chunks",
     "scan_sums",
@@ -68,6 +72,8 @@ pub const ENTRY_POINTS: [&str; 13] = [
     "g2p_backward_scatter",
     "grid_update_backward",
     "p2g_backward",
+    "actuator_accel_backward",
+    "zero_coupled",
 ];
 
 /// The whole translation unit for `precision`.

@@ -4,6 +4,7 @@ use crate::backward::{AdjointBuffers, AdjointSeconds};
 use crate::consts::KernelConsts;
 use crate::device::{CudaDevice, Kernels};
 use crate::error::CudaError;
+use crate::frame::DeviceFrameTape;
 use crate::kernels::Precision;
 use crate::launch::{Laps, Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
 use cudarc::driver::{CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits};
@@ -49,10 +50,10 @@ pub(crate) fn unflat<T: Real, const R: usize, const C: usize>(
 
 /// The actuator couplings and the anchors of the current frame.
 #[derive(Debug)]
-struct CouplingBuffers<T> {
-    row_start: CudaSlice<u32>,
-    anchor: CudaSlice<u32>,
-    rest_offset: CudaSlice<T>,
+pub(crate) struct CouplingBuffers<T> {
+    pub row_start: CudaSlice<u32>,
+    pub anchor: CudaSlice<u32>,
+    pub rest_offset: CudaSlice<T>,
     /// Anchor positions at the start of each substep of the frame, then
     /// at its end (rigid mode), and their velocities.
     anchor_x: CudaSlice<T>,
@@ -295,6 +296,18 @@ impl<T: DeviceReal> CudaWorld<T> {
         &self.kernels
     }
 
+    pub(crate) fn coupling_buffers(&self) -> &CouplingBuffers<T> {
+        &self.couplings
+    }
+
+    pub(crate) fn id_of_slot(&self) -> &[u32] {
+        self.host.id_of_slot()
+    }
+
+    pub(crate) fn consts(&self) -> &dm_mpm::state::Consts<T> {
+        self.host.consts()
+    }
+
     /// Advances one video frame while the anchors move linearly from
     /// `anchors_from` to `anchors_to` (as [`World::step_frame`]).
     pub fn step_frame(
@@ -303,6 +316,31 @@ impl<T: DeviceReal> CudaWorld<T> {
         anchors_to: &[[f64; 3]],
         active: &[bool],
     ) -> Result<(), CudaError> {
+        self.advance_frame(anchors_from, anchors_to, active, None)
+            .map(|_| ())
+    }
+
+    /// Like [`CudaWorld::step_frame`], recording on the device what the
+    /// backward pass ([`CudaWorld::backward_frame`]) needs for the last
+    /// `window` substeps of the frame.
+    pub fn step_frame_taped(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        window: usize,
+    ) -> Result<DeviceFrameTape<T>, CudaError> {
+        self.advance_frame(anchors_from, anchors_to, active, Some(window))?
+            .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
+    }
+
+    fn advance_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        window: Option<usize>,
+    ) -> Result<Option<DeviceFrameTape<T>>, CudaError> {
         let grasp_positions = if self.host.actuators().grasp_pending(active) {
             let x = self.stream().clone_dtoh(&self.particles.x)?;
             Some(unflat::<T, 3, 1>(&x))
@@ -334,13 +372,35 @@ impl<T: DeviceReal> CudaWorld<T> {
         }
         let k = self.kernel_consts();
         let anchors = anchors_from.len();
+        let stream = self.device.stream().clone();
+        let mut states = Vec::new();
         for s in 0..steps {
+            if window.is_some_and(|w| s + w >= steps) {
+                states.push(self.particles.duplicate(&stream)?);
+            }
             self.launch_substep(&k, s, coupled.then_some(s * anchors * 3))?;
         }
         self.host_stale = true;
         self.check_failure()?;
         self.host.count_frame();
-        Ok(())
+        let Some(_) = window else {
+            return Ok(None);
+        };
+        let anchors_taped = if coupled {
+            Some((
+                stream.clone_dtod(&self.couplings.anchor_x)?,
+                stream.clone_dtod(&self.couplings.anchor_v)?,
+            ))
+        } else {
+            None
+        };
+        Ok(Some(DeviceFrameTape {
+            states,
+            anchors: anchors_taped,
+            anchor_count: anchors,
+            substeps: steps,
+            frame_dt: self.host.config().dt * steps as f64,
+        }))
     }
 
     /// Advances one frame with no anchors.

@@ -45,6 +45,7 @@ pub fn quick_fit_options() -> FitOptions {
         identifiability: false,
         track_noise_mm: dm_fit::identifiability::DEFAULT_TRACK_NOISE_MM,
         track_offset_mm: dm_fit::identifiability::DEFAULT_TRACK_OFFSET_MM,
+        device: dm_model::device::Device::Cpu,
     }
 }
 

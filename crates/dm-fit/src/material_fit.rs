@@ -19,6 +19,7 @@ use crate::optim::{
     Adam, AdamConfig, ClipConfig, OptimError, ParamSet, clip_global_norm, clip_physics_gradients,
 };
 use dm_bundle::Bundle;
+use dm_model::device::{Device, DeviceWorld};
 use dm_model::residual::{
     FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
@@ -78,6 +79,10 @@ pub struct MaterialFitConfig {
     /// ([`crate::learnt_effects::write_back_damping`]).
     #[serde(default)]
     pub learn_damping: bool,
+    /// Where the MPM world and its adjoint run (the residual network, the
+    /// losses and the optimiser stay on the CPU).
+    #[serde(default)]
+    pub device: Device,
 }
 
 fn learn_effects_by_default() -> bool {
@@ -125,6 +130,7 @@ impl Default for MaterialFitConfig {
             freeze_material: false,
             learn_effects: true,
             learn_damping: false,
+            device: Device::Cpu,
         }
     }
 }
@@ -248,6 +254,18 @@ pub fn loss_and_gradient(
     bundle: &Bundle,
     frames: usize,
     window: usize,
+    extra: Option<&mut dyn FrameTerm>,
+) -> Result<(f64, LossGradients), FitError> {
+    loss_and_gradient_on(model, bundle, frames, window, Device::Cpu, extra)
+}
+
+/// [`loss_and_gradient`] with the MPM world and its adjoint on `device`.
+pub fn loss_and_gradient_on(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    window: usize,
+    device: Device,
     mut extra: Option<&mut dyn FrameTerm>,
 ) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
@@ -258,7 +276,7 @@ pub fn loss_and_gradient(
         });
     }
     let steps = frames - 1;
-    let mut world = model.world()?;
+    let mut world = DeviceWorld::of_model(model, device)?;
     let network = model.residual_network()?;
     let n = world.particle_count();
     let fixed = FixedTerms::new(model, bundle)?;
@@ -273,18 +291,18 @@ pub fn loss_and_gradient(
     let mut frame_losses = Vec::with_capacity(steps);
     let mut loss = 0.0;
     for t in 0..steps {
-        checkpoints.push(world.state());
+        checkpoints.push(world.state()?);
         if network.is_some() {
-            starts.push(frame_start(&world));
+            starts.push(frame_start(world.host()?));
         }
         let (from, to, grasp) = model.hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
         if let Some(network) = &network {
-            let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
+            let (dv, _) = world.edit(|w| apply_residual(w, network, &starts, t))??;
             loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
-        let positions = world.positions();
+        let positions = world.positions()?;
         let value = fixed.frame(bundle, t + 1, &positions)?;
         loss += value.value / steps as f64;
         frame_losses.push(value.value);
@@ -322,8 +340,8 @@ pub fn loss_and_gradient(
         let tape = world.step_frame_taped(&from, &to, &grasp, window)?;
         let mut x_start_grad = None;
         if let (Some(network), Some(grad_residual)) = (&network, grad_residual.as_mut()) {
-            let inputs = frame_inputs(&world, &starts, t);
-            let correction = world.apply_velocity_correction(&corrections[t])?;
+            let inputs = frame_inputs(world.host()?, &starts, t);
+            let correction = world.edit(|w| w.apply_velocity_correction(&corrections[t]))??;
             let grads = residual_backward(
                 network,
                 &inputs,
@@ -358,7 +376,7 @@ pub fn loss_and_gradient(
         }
     }
     let extension = &model.extension;
-    let masses: Vec<f64> = world.state().mass.iter().map(|m| f64::from(*m)).collect();
+    let masses: Vec<f64> = world.state()?.mass.iter().map(|m| f64::from(*m)).collect();
     let grad_extension = ExtensionGrads {
         // The base material is rebuilt only when a ball needs it.
         stiffness_log_factor: match extension.stiff_ball {
@@ -438,11 +456,12 @@ pub fn material_step(
     extra: Option<&mut dyn FrameTerm>,
 ) -> Result<IterationReport, FitError> {
     let start = std::time::Instant::now();
-    let (loss, grads) = loss_and_gradient(
+    let (loss, grads) = loss_and_gradient_on(
         model,
         bundle,
         fit_frames(bundle, config),
         config.window,
+        config.device,
         extra,
     )?;
     let late_loss = late_frames_loss(&grads.frame_losses);
@@ -529,7 +548,17 @@ pub fn fit_material(
 /// Forward-only mean loss L_dyn over the first `frames` frames (for the
 /// gain search); a diverging rollout scores infinity.
 pub fn train_loss(model: &WorldModel, bundle: &Bundle, frames: usize) -> Result<f64, FitError> {
-    let losses = train_frame_losses(model, bundle, frames)?;
+    train_loss_on(model, bundle, frames, Device::Cpu)
+}
+
+/// [`train_loss`] with the MPM world on `device`.
+pub fn train_loss_on(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    device: Device,
+) -> Result<f64, FitError> {
+    let losses = train_frame_losses_on(model, bundle, frames, device)?;
     Ok(losses.iter().sum::<f64>() / losses.len().max(1) as f64)
 }
 
@@ -540,23 +569,35 @@ pub fn train_frame_losses(
     bundle: &Bundle,
     frames: usize,
 ) -> Result<Vec<f64>, FitError> {
+    train_frame_losses_on(model, bundle, frames, Device::Cpu)
+}
+
+/// [`train_frame_losses`] with the MPM world on `device`.
+pub fn train_frame_losses_on(
+    model: &WorldModel,
+    bundle: &Bundle,
+    frames: usize,
+    device: Device,
+) -> Result<Vec<f64>, FitError> {
     let frames = frames.min(bundle.frame_count());
     let steps = frames.saturating_sub(1);
     let fixed = FixedTerms::new(model, bundle)?;
-    let mut world = model.world()?;
+    let mut world = DeviceWorld::of_model(model, device)?;
     let network = model.residual_network()?;
     let mut starts: Vec<FrameStart> = Vec::new();
     let mut losses = Vec::with_capacity(steps);
     for t in 0..steps {
-        starts.push(frame_start(&world));
+        if network.is_some() {
+            starts.push(frame_start(world.host()?));
+        }
         let (from, to, grasp) = model.hand_step(bundle, t);
         if world.step_frame(&from, &to, &grasp).is_err() {
             return Ok(vec![f64::INFINITY; steps]);
         }
         if let Some(network) = &network {
-            apply_residual(&mut world, network, &starts, t)?;
+            world.edit(|w| apply_residual(w, network, &starts, t))??;
         }
-        losses.push(fixed.frame(bundle, t + 1, &world.positions())?.value);
+        losses.push(fixed.frame(bundle, t + 1, &world.positions()?)?.value);
     }
     Ok(losses)
 }

@@ -8,7 +8,7 @@ use crate::identifiability::{
 };
 use crate::material_fit::{
     FitError, IterationReport, MaterialFitConfig, fit_frames, late_frames_loss, material_step,
-    train_frame_losses, train_loss,
+    train_frame_losses_on, train_loss_on,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
 use crate::residual_check::{ResidualCheck, check_residual, physics_only_options};
@@ -16,6 +16,7 @@ use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
 use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
+use dm_model::device::Device;
 use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -91,6 +92,11 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ParticleDamping::Fixed)]
     #[serde(default)]
     pub damping: ParticleDamping,
+    /// Where the MPM world and its adjoint run (cuda: the first NVIDIA GPU;
+    /// the residual network, losses and optimiser stay on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    #[serde(default)]
+    pub device: Device,
     /// Keep the effect terms a start model carries (drag, viscosity,
     /// friction, a ground tilt) fixed instead of learning them.
     #[arg(long)]
@@ -310,6 +316,7 @@ pub(crate) fn material_config(
         learn_effects: !options.freeze_effects,
         learn_damping: options.damping == ParticleDamping::Learnt
             && matches!(stage, Stage::Material2 | Stage::Rgb),
+        device: options.device,
     }
 }
 
@@ -348,7 +355,7 @@ fn select_gains(
         kp: model.actuator.kp,
         kd: model.actuator.kd,
         grasp_radius: radius.then_some(model.actuator.grasp_radius),
-        loss: train_loss(model, bundle, frames)?,
+        loss: train_loss_on(model, bundle, frames, options.device)?,
     };
     trials.push(best);
     while search.should_stop().is_none() && (trials.len() as u64) < options.gain_evals {
@@ -370,7 +377,7 @@ fn select_gains(
                     kp: candidate.actuator.kp,
                     kd: candidate.actuator.kd,
                     grasp_radius: radius.then_some(candidate.actuator.grasp_radius),
-                    loss: train_loss(&candidate, bundle, frames)?,
+                    loss: train_loss_on(&candidate, bundle, frames, options.device)?,
                 })
             })
             .collect::<Result<_, FitError>>()?;
@@ -663,7 +670,7 @@ pub(crate) fn fit_stages(
         write_json_atomic(&checkpoint_path, &state)?;
     }
     let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
-    let final_loss = train_loss(&state.model, bundle, frames)?;
+    let final_loss = train_loss_on(&state.model, bundle, frames, options.device)?;
     let (youngs, poisson) = state.model.material_medians();
     progress("probing how sharply the clip pins E and ν");
     let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
@@ -776,7 +783,12 @@ fn restore_kept_residual(
         return Ok(None);
     }
     let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
-    let last = late_frames_loss(&train_frame_losses(&state.model, bundle, frames)?);
+    let last = late_frames_loss(&train_frame_losses_on(
+        &state.model,
+        bundle,
+        frames,
+        options.device,
+    )?);
     let step = state.iteration;
     keep_if_better(
         &mut state.kept_residual,

@@ -2,9 +2,11 @@
 //! an NVIDIA GPU through `dm-cuda`.
 
 use crate::ModelError;
-use dm_cuda::{CudaDevice, CudaWorld};
+use dm_cuda::{CudaDevice, CudaWorld, DeviceFrameTape};
 use dm_mpm::actuators::Actuators;
+use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::state::Particles;
+use dm_mpm::tape::{FrameGrads, FrameTape};
 use dm_mpm::{PhysicsConfig, World};
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
@@ -34,6 +36,13 @@ fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
     Ok(device)
 }
 
+/// What a frame's backward pass needs, on the world's device.
+#[derive(Debug)]
+pub enum DeviceTape {
+    Cpu(FrameTape<f32>),
+    Cuda(DeviceFrameTape<f32>),
+}
+
 /// An MPM world on the CPU or on the GPU, stepped the same way.
 #[derive(Debug)]
 pub enum DeviceWorld {
@@ -42,6 +51,11 @@ pub enum DeviceWorld {
 }
 
 impl DeviceWorld {
+    /// `model`'s world at its first frame on `device`.
+    pub fn of_model(model: &crate::WorldModel, device: Device) -> Result<Self, ModelError> {
+        Self::new(model.world()?, device)
+    }
+
     /// `world` moved to `device`.
     pub fn new(world: World<f32>, device: Device) -> Result<Self, ModelError> {
         Ok(match device {
@@ -68,6 +82,50 @@ impl DeviceWorld {
             DeviceWorld::Cpu(world) => Ok(world.step_frame(from, to, active)?),
             DeviceWorld::Cuda(world) => Ok(world.step_frame(from, to, active)?),
         }
+    }
+
+    /// As [`World::step_frame_taped`].
+    pub fn step_frame_taped(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        active: &[bool],
+        window: usize,
+    ) -> Result<DeviceTape, ModelError> {
+        match self {
+            DeviceWorld::Cpu(world) => Ok(DeviceTape::Cpu(
+                world.step_frame_taped(from, to, active, window)?,
+            )),
+            DeviceWorld::Cuda(world) => Ok(DeviceTape::Cuda(
+                world.step_frame_taped(from, to, active, window)?,
+            )),
+        }
+    }
+
+    /// As [`World::backward_frame`]; `tape` must come from this world.
+    pub fn backward_frame(
+        &mut self,
+        tape: &DeviceTape,
+        grad_after: &ParticleGrads<f32>,
+    ) -> Result<FrameGrads<f32>, ModelError> {
+        match (self, tape) {
+            (DeviceWorld::Cpu(world), DeviceTape::Cpu(tape)) => {
+                Ok(world.backward_frame(tape, grad_after)?)
+            }
+            (DeviceWorld::Cuda(world), DeviceTape::Cuda(tape)) => {
+                Ok(world.backward_frame(tape, grad_after)?)
+            }
+            _ => Err(ModelError::InvalidOption {
+                option: "device".into(),
+                problem: "a frame's tape was replayed on another device".into(),
+            }),
+        }
+    }
+
+    /// Replaces the particle state (caller's order).
+    pub fn set_state(&mut self, state: &Particles<f32>) -> Result<(), ModelError> {
+        self.edit(|world| world.set_state(state))??;
+        Ok(())
     }
 
     /// The world with its particle state up to date (fetched from the GPU).

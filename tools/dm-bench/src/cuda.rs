@@ -362,6 +362,108 @@ fn gradient_parity_run<T: DeviceReal>(
         ));
     }
     println!("gradient parity {scene:?} {precision} (cosine/norm ratio): {worst}");
+    Ok(passed && frame_gradient_parity_run::<T>(device, scene, particles)?)
+}
+
+/// A whole frame's adjoint (`backward_frame`, the actuators' and anchors'
+/// adjoints included) on both devices, from the same state after the
+/// first frame; prints each group's agreement and returns whether all pass.
+fn frame_gradient_parity_run<T: DeviceReal>(
+    device: &Arc<CudaDevice>,
+    scene: ParityScene,
+    particles: usize,
+) -> Result<bool> {
+    use dm_mpm::g2p_backward::ParticleGrads;
+    use dm_mpm::real::Vec3;
+    use dm_mpm::tape::FrameGrads;
+    let mut cpu = parity_world::<T>(scene, particles)?;
+    let (from, to, active) = parity_anchors(scene, 0);
+    cpu.step_frame(&from, &to, &active)?;
+    let mut gpu = CudaWorld::new(parity_world::<T>(scene, particles)?, device.clone())?;
+    gpu.step_frame(&from, &to, &active)?;
+    let state = cpu.state();
+    gpu.edit(|w| w.set_state(&state))??;
+    let (from, to, active) = parity_anchors(scene, 1);
+    let window = cpu.config().substeps_per_frame;
+    let cpu_tape = cpu.step_frame_taped(&from, &to, &active, window)?;
+    let gpu_tape = gpu.step_frame_taped(&from, &to, &active, window)?;
+    let n = state.len();
+    let upstream = ParticleGrads {
+        x: (0..n)
+            .map(|p| Vec3::new(T::one(), T::lit(-0.5), T::lit(0.25)) * T::lit(p as f64 / n as f64))
+            .collect(),
+        ..ParticleGrads::zeros(n)
+    };
+    let want = cpu.backward_frame(&cpu_tape, &upstream)?;
+    let got = gpu.backward_frame(&gpu_tape, &upstream)?;
+    let groups = |g: &FrameGrads<T>| -> Vec<(&'static str, Vec<f64>)> {
+        let v3 = |v: &[Vec3<T>]| {
+            v.iter()
+                .flat_map(|a| a.iter().map(|c| c.to_f64()))
+                .collect::<Vec<f64>>()
+        };
+        let s = |v: &[T]| v.iter().map(|c| c.to_f64()).collect::<Vec<f64>>();
+        let e = &g.effects;
+        vec![
+            ("x", v3(&g.state.x)),
+            ("v", v3(&g.state.v)),
+            (
+                "F",
+                g.state
+                    .f
+                    .iter()
+                    .flat_map(|m| m.iter().map(|c| c.to_f64()))
+                    .collect(),
+            ),
+            (
+                "C",
+                g.state
+                    .c
+                    .iter()
+                    .flat_map(|m| m.iter().map(|c| c.to_f64()))
+                    .collect(),
+            ),
+            ("mu", s(&g.mu)),
+            ("lambda", s(&g.lambda)),
+            (
+                "expert weights",
+                g.weights
+                    .iter()
+                    .flat_map(|w| w.map(|c| c.to_f64()))
+                    .collect(),
+            ),
+            ("mass", s(&g.mass)),
+            ("gains", vec![g.gains.kp, g.gains.kd]),
+            ("drag", vec![e.air_drag_linear, e.air_drag_quadratic]),
+            ("gravity", e.gravity.to_vec()),
+            ("friction", vec![e.floor_friction]),
+            ("particle damping", vec![e.particle_damping]),
+            (
+                "anchors",
+                g.anchors_from
+                    .iter()
+                    .chain(&g.anchors_to)
+                    .flatten()
+                    .copied()
+                    .collect(),
+            ),
+        ]
+    };
+    let mut passed = true;
+    let mut line = String::new();
+    for ((name, a), (_, b)) in groups(&want).into_iter().zip(groups(&got)) {
+        let (cosine, ratio) = agreement(&a, &b);
+        let ok = cosine >= GRADIENT_COSINE && (ratio - 1.0).abs() <= GRADIENT_NORM;
+        passed &= ok;
+        line.push_str(&format!(
+            "{name} {cosine:.6}/{ratio:.5}{}; ",
+            if ok { "" } else { " FAIL" }
+        ));
+    }
+    println!(
+        "frame gradient parity {scene:?} {} ({window} substeps; cosine/norm ratio): {line}",
+        T::PRECISION.c_type()
+    );
     Ok(passed)
 }
 

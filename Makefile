@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-scene clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-scene fuzz clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -230,6 +230,14 @@ bench-peers: $(PEERS_VENV)/.installed
 	  $(PEERS) --peer $$peer --particles 100000 --experts nh --substeps $(PEERS_SUBSTEPS) 2>>$(PEERS_LOG); \
 	  $(PEERS) --peer $$peer --particles 10000 --grad-window 20 2>>$(PEERS_LOG); \
 	done
+
+# The long fuzz run (docs/RELIABILITY.md): every parser of outside input,
+# 10^6 seeded mutants each; inputs that panic or hang land in fuzz/findings.
+FUZZ_INPUTS ?= 1000000
+FUZZ_SEED ?= 7
+fuzz:
+	$(CARGO) build --release -p dm-fuzz-cli
+	./target/release/dm-fuzz --inputs $(FUZZ_INPUTS) --seed $(FUZZ_SEED)
 
 # The GPU checks (docs/gpu.md): parity of the CUDA world against the CPU
 # world and substep throughput, from prebuilt release binaries, so the

@@ -30,7 +30,18 @@ impl Mesh {
             .unwrap_or_default();
         let mesh = match extension.as_str() {
             "obj" => load_obj(path)?,
-            "gltf" | "glb" => load_gltf(path)?,
+            // The gltf crate's validation indexes arrays with indices
+            // from the file and can panic on a malformed one: that is
+            // this file's error, not a crash.
+            "gltf" | "glb" => {
+                std::panic::catch_unwind(|| load_gltf(path)).unwrap_or_else(|_| {
+                    Err(PriorError::Mesh {
+                        path: path.to_path_buf(),
+                        problem: "malformed glTF: an index in the file points past its arrays"
+                            .into(),
+                    })
+                })?
+            }
             _ => {
                 return Err(PriorError::Mesh {
                     path: path.to_path_buf(),

@@ -1,0 +1,105 @@
+//! The quick fuzz run of `make test`: every target for a few seconds from
+//! the committed corpus (the long run is `make fuzz`). A panic or a hang
+//! on any input fails, printing the input's bytes.
+
+use dm_fuzz::{Budget, Target, default_corpus, run};
+
+/// Seconds per target: every target gets thousands of inputs.
+const QUICK_SECONDS: f64 = 8.0;
+
+fn quick(target: Target) {
+    let report = run(
+        target,
+        &default_corpus(),
+        1,
+        Budget {
+            inputs: u64::MAX,
+            seconds: QUICK_SECONDS,
+        },
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", target.name()));
+    assert!(
+        report.inputs > 100,
+        "{}: only {} inputs",
+        target.name(),
+        report.inputs
+    );
+    assert!(
+        report.accepted > 0,
+        "{}: not even the seeds were accepted",
+        target.name()
+    );
+    if let Some(finding) = report.findings.first() {
+        panic!(
+            "{}: {} findings; the first, {}, on input {:?}",
+            target.name(),
+            report.findings.len(),
+            finding.what,
+            String::from_utf8_lossy(&finding.input)
+        );
+    }
+}
+
+#[test]
+fn pickle() {
+    quick(Target::Pickle);
+}
+#[test]
+fn ply() {
+    quick(Target::Ply);
+}
+#[test]
+fn obj() {
+    quick(Target::Obj);
+}
+#[test]
+fn glb() {
+    quick(Target::Glb);
+}
+#[test]
+fn manifest() {
+    quick(Target::Manifest);
+}
+#[test]
+fn bundle_json() {
+    quick(Target::BundleJson);
+}
+#[test]
+fn bundle_npy() {
+    quick(Target::BundleNpy);
+}
+#[test]
+fn model_json() {
+    quick(Target::ModelJson);
+}
+#[test]
+fn play_command() {
+    quick(Target::PlayCommand);
+}
+
+/// Every input a fuzz run found (`fuzz/regressions/TARGET/`) is refused
+/// with an error, without a panic.
+#[test]
+fn past_findings_are_refused_without_a_panic() {
+    let root = default_corpus().join("../regressions");
+    let mut checked = 0;
+    for target in Target::ALL {
+        let dir = root.join(target.name());
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries {
+            let path = entry.expect("entry").path();
+            let input = std::fs::read(&path).expect("read");
+            let accepted = dm_fuzz::feed_once(target, &input)
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(
+                !accepted,
+                "{}: a malformed input was accepted",
+                path.display()
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 0, "no regression inputs under {}", root.display());
+}

@@ -205,7 +205,22 @@ pub struct WindowGrads<T> {
 }
 
 impl<T: DeviceReal> CudaWorld<T> {
-    pub(crate) fn take_adjoint_buffers(&mut self) -> Result<AdjointBuffers<T>, CudaError> {
+    /// Runs `body` with the adjoint's buffers, their sums cleared; the
+    /// buffers are kept for the next backward pass whatever `body` returns.
+    pub(crate) fn with_adjoint<R>(
+        &mut self,
+        body: impl FnOnce(&mut Self, &mut AdjointBuffers<T>) -> Result<R, CudaError>,
+    ) -> Result<R, CudaError> {
+        let stream = self.device().stream().clone();
+        let mut buffers = self.take_adjoint_buffers()?;
+        let out = buffers
+            .clear_sums(&stream)
+            .and_then(|()| body(self, &mut buffers));
+        self.adjoint = Some(buffers);
+        out
+    }
+
+    fn take_adjoint_buffers(&mut self) -> Result<AdjointBuffers<T>, CudaError> {
         match self.adjoint.take() {
             Some(buffers) => Ok(buffers),
             None => AdjointBuffers::new(
@@ -240,10 +255,8 @@ impl<T: DeviceReal> CudaWorld<T> {
             Some(a) => Some(stream.clone_htod(&flat(a))?),
             None => None,
         };
-        let mut buffers = self.take_adjoint_buffers()?;
-        buffers.clear_sums(&stream)?;
-        let result = self.run_substep_backward(&state, accel.as_ref(), &grad, &mut buffers);
-        let out = result.and_then(|()| {
+        self.with_adjoint(|world, buffers| {
+            world.run_substep_backward(&state, accel.as_ref(), &grad, buffers)?;
             std::mem::swap(&mut grad, &mut buffers.grad_in);
             let state = download(&stream, &grad)?;
             let params = stream.clone_dtoh(&buffers.params)?;
@@ -270,9 +283,7 @@ impl<T: DeviceReal> CudaWorld<T> {
                 damping_factor: sum(stream.clone_dtoh(&buffers.damping)?),
                 mass: stream.clone_dtoh(&buffers.mass)?,
             })
-        });
-        self.adjoint = Some(buffers);
-        out
+        })
     }
 
     /// Runs `count` free substeps (no anchors), recording the state
@@ -305,17 +316,11 @@ impl<T: DeviceReal> CudaWorld<T> {
             &grad_after.f,
             &grad_after.c,
         )?;
-        let mut buffers = self.take_adjoint_buffers()?;
-        buffers.clear_sums(&stream)?;
-        let mut result = Ok(());
-        for state in tape.states.iter().rev() {
-            result = self.run_substep_backward(state, None, &grad, &mut buffers);
-            if result.is_err() {
-                break;
+        self.with_adjoint(|world, buffers| {
+            for state in tape.states.iter().rev() {
+                world.run_substep_backward(state, None, &grad, buffers)?;
+                std::mem::swap(&mut grad, &mut buffers.grad_in);
             }
-            std::mem::swap(&mut grad, &mut buffers.grad_in);
-        }
-        let out = result.and_then(|()| {
             Ok(WindowGrads {
                 state: if with_state {
                     Some(download(&stream, &grad)?)
@@ -325,9 +330,7 @@ impl<T: DeviceReal> CudaWorld<T> {
                 mu: stream.clone_dtoh(&buffers.mu)?,
                 lambda: stream.clone_dtoh(&buffers.lambda)?,
             })
-        });
-        self.adjoint = Some(buffers);
-        out
+        })
     }
 
     /// Launches the adjoint of one substep entered at `state`: writes the

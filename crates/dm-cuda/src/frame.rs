@@ -4,7 +4,7 @@
 //! the actuators' and the anchors' adjoints.
 
 use crate::error::CudaError;
-use crate::launch::{ParticleBuffers, launch_for};
+use crate::launch::{Launcher, ParticleBuffers, launch_for};
 use crate::world::{CudaWorld, DeviceReal};
 use cudarc::driver::{CudaSlice, PushKernelArg};
 use dm_mpm::ActuatorMode;
@@ -42,16 +42,14 @@ impl<T: DeviceReal> CudaWorld<T> {
             )));
         }
         let stream = self.device().stream().clone();
-        let ids = self.id_of_slot().to_vec();
+        let host = self.host_world();
         let slot_grad = ParticleGrads {
-            x: to_slots(&grad_after.x, &ids),
-            v: to_slots(&grad_after.v, &ids),
-            f: to_slots(&grad_after.f, &ids),
-            c: to_slots(&grad_after.c, &ids),
+            x: host.to_slot_order(&grad_after.x),
+            v: host.to_slot_order(&grad_after.v),
+            f: host.to_slot_order(&grad_after.f),
+            c: host.to_slot_order(&grad_after.c),
         };
         let mut grad = crate::backward::upload_grads(&stream, &slot_grad)?;
-        let mut buffers = self.take_adjoint_buffers()?;
-        buffers.clear_sums(&stream)?;
         let m = tape.anchor_count;
         let mut gains: CudaSlice<T> = stream.alloc_zeros(2)?;
         let mut anchor_ends: CudaSlice<T> = stream.alloc_zeros((6 * m).max(1))?;
@@ -62,87 +60,78 @@ impl<T: DeviceReal> CudaWorld<T> {
         let first = tape.substeps - tape.states.len();
         let frame_dt = T::lit(tape.frame_dt);
         let kernels = self.kernels().clone();
-        let mut result = Ok(());
-        for r in (0..tape.states.len()).rev() {
-            let state = &tape.states[r];
-            let s = first + r;
-            let couplings = self.coupling_buffers();
-            if let Some((anchor_x, anchor_v)) = &tape.anchors {
-                if rigid {
-                    let mut launch = stream.launch_builder(&kernels.zero_coupled);
+        self.with_adjoint(|world, buffers| {
+            for r in (0..tape.states.len()).rev() {
+                let state = &tape.states[r];
+                let s = first + r;
+                let couplings = world.coupling_buffers();
+                if let Some((anchor_x, anchor_v)) = &tape.anchors {
+                    if rigid {
+                        let mut launch = stream.launch_builder(&kernels.zero_coupled);
+                        launch
+                            .arg(&n_i32)
+                            .arg(&couplings.row_start)
+                            .arg(&mut grad.x)
+                            .arg(&mut grad.v);
+                        // SAFETY: the arguments match zero_coupled's signature.
+                        unsafe { launch.launch(launch_for(n)) }?;
+                    }
+                    let at = anchor_x.slice(s * m * 3..);
+                    let launcher = Launcher {
+                        stream: &stream,
+                        kernels: &kernels,
+                        k: &k,
+                        n,
+                        res: world.config().grid_res,
+                    };
+                    launcher.actuator_accel(couplings, state, &at, anchor_v, &mut forward_accel)?;
+                }
+                let accel = tape.anchors.as_ref().map(|_| &forward_accel);
+                world.run_substep_backward(state, accel, &grad, buffers)?;
+                if let (Some((anchor_x, anchor_v)), false) = (&tape.anchors, rigid) {
+                    let couplings = world.coupling_buffers();
+                    let at = anchor_x.slice(s * m * 3..);
+                    let along = T::lit(s as f64 / tape.substeps as f64);
+                    let b = &mut *buffers;
+                    let mut launch = stream.launch_builder(&kernels.actuator_accel_backward);
                     launch
+                        .arg(&k)
                         .arg(&n_i32)
+                        .arg(&state.x)
+                        .arg(&state.v)
                         .arg(&couplings.row_start)
-                        .arg(&mut grad.x)
-                        .arg(&mut grad.v);
-                    // SAFETY: the arguments match zero_coupled's signature.
+                        .arg(&couplings.anchor)
+                        .arg(&couplings.rest_offset)
+                        .arg(&at)
+                        .arg(anchor_v)
+                        .arg(&b.accel)
+                        .arg(&along)
+                        .arg(&frame_dt)
+                        .arg(&mut b.grad_in.x)
+                        .arg(&mut b.grad_in.v)
+                        .arg(&mut gains)
+                        .arg(&mut anchor_ends);
+                    // SAFETY: as above, for actuator_accel_backward.
                     unsafe { launch.launch(launch_for(n)) }?;
                 }
-                let at = anchor_x.slice(s * m * 3..);
-                let mut launch = stream.launch_builder(&kernels.actuator_accel);
-                launch
-                    .arg(&k)
-                    .arg(&n_i32)
-                    .arg(&state.x)
-                    .arg(&state.v)
-                    .arg(&couplings.row_start)
-                    .arg(&couplings.anchor)
-                    .arg(&couplings.rest_offset)
-                    .arg(&at)
-                    .arg(anchor_v)
-                    .arg(&mut forward_accel);
-                // SAFETY: as above, for actuator_accel.
-                unsafe { launch.launch(launch_for(n)) }?;
+                std::mem::swap(&mut grad, &mut buffers.grad_in);
             }
-            let accel = tape.anchors.as_ref().map(|_| &forward_accel);
-            result = self.run_substep_backward(state, accel, &grad, &mut buffers);
-            if result.is_err() {
-                break;
-            }
-            if let (Some((anchor_x, anchor_v)), false) = (&tape.anchors, rigid) {
-                let couplings = self.coupling_buffers();
-                let at = anchor_x.slice(s * m * 3..);
-                let along = T::lit(s as f64 / tape.substeps as f64);
-                let b = &mut buffers;
-                let mut launch = stream.launch_builder(&kernels.actuator_accel_backward);
-                launch
-                    .arg(&k)
-                    .arg(&n_i32)
-                    .arg(&state.x)
-                    .arg(&state.v)
-                    .arg(&couplings.row_start)
-                    .arg(&couplings.anchor)
-                    .arg(&couplings.rest_offset)
-                    .arg(&at)
-                    .arg(anchor_v)
-                    .arg(&b.accel)
-                    .arg(&along)
-                    .arg(&frame_dt)
-                    .arg(&mut b.grad_in.x)
-                    .arg(&mut b.grad_in.v)
-                    .arg(&mut gains)
-                    .arg(&mut anchor_ends);
-                // SAFETY: as above, for actuator_accel_backward.
-                unsafe { launch.launch(launch_for(n)) }?;
-            }
-            std::mem::swap(&mut grad, &mut buffers.grad_in);
-        }
-        let out = result.and_then(|()| {
             let sums = buffers.download_sums(&stream)?;
             let state = crate::backward::download_grads(&stream, &grad)?;
             let gains = stream.clone_dtoh(&gains)?;
             let ends = stream.clone_dtoh(&anchor_ends)?;
-            let (dt, kappa) = (self.consts().dt, self.consts().particle_damping_factor);
+            let host = world.host_world();
+            let (dt, kappa) = (world.consts().dt, world.consts().particle_damping_factor);
             Ok(FrameGrads {
                 state: ParticleGrads {
-                    x: to_callers(&state.x, &ids),
-                    v: to_callers(&state.v, &ids),
-                    f: to_callers(&state.f, &ids),
-                    c: to_callers(&state.c, &ids),
+                    x: host.to_caller_order(&state.x),
+                    v: host.to_caller_order(&state.v),
+                    f: host.to_caller_order(&state.f),
+                    c: host.to_caller_order(&state.c),
                 },
-                mu: to_callers(&sums.mu, &ids),
-                lambda: to_callers(&sums.lambda, &ids),
-                weights: to_callers(&sums.weights, &ids),
+                mu: host.to_caller_order(&sums.mu),
+                lambda: host.to_caller_order(&sums.lambda),
+                weights: host.to_caller_order(&sums.weights),
                 gains: GainGrads {
                     kp: gains[0].to_f64(),
                     kd: gains[1].to_f64(),
@@ -155,7 +144,7 @@ impl<T: DeviceReal> CudaWorld<T> {
                     floor_friction: sums.friction,
                     particle_damping: -sums.damping * (dt * kappa).to_f64(),
                 },
-                mass: to_callers(&sums.mass, &ids),
+                mass: host.to_caller_order(&sums.mass),
                 anchors_from: (0..m)
                     .map(|c| [0, 1, 2].map(|a| ends[6 * c + a].to_f64()))
                     .collect(),
@@ -163,22 +152,6 @@ impl<T: DeviceReal> CudaWorld<T> {
                     .map(|c| [0, 1, 2].map(|a| ends[6 * c + 3 + a].to_f64()))
                     .collect(),
             })
-        });
-        self.adjoint = Some(buffers);
-        out
+        })
     }
-}
-
-/// `values` (caller order) in slot order.
-fn to_slots<V: Copy>(values: &[V], id_of_slot: &[u32]) -> Vec<V> {
-    id_of_slot.iter().map(|&id| values[id as usize]).collect()
-}
-
-/// `values` (slot order) in the caller's order.
-fn to_callers<V: Copy>(values: &[V], id_of_slot: &[u32]) -> Vec<V> {
-    let mut out = values.to_vec();
-    for (slot, &id) in id_of_slot.iter().enumerate() {
-        out[id as usize] = values[slot];
-    }
-    out
 }

@@ -5,8 +5,9 @@
 use crate::consts::KernelConsts;
 use crate::device::Kernels;
 use crate::error::CudaError;
+use crate::world::CouplingBuffers;
 use crate::world::DeviceReal;
-use cudarc::driver::{CudaSlice, CudaStream, LaunchConfig, PushKernelArg};
+use cudarc::driver::{CudaSlice, CudaStream, CudaView, LaunchConfig, PushKernelArg};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -109,6 +110,35 @@ pub(crate) struct Launcher<'a, T> {
 impl<T: DeviceReal> Launcher<'_, T> {
     fn n_i32(&self) -> i32 {
         self.n as i32
+    }
+
+    /// The actuators' acceleration of the particles `p` towards the
+    /// anchors at `anchor_x` (this substep's) moving at `anchor_v`.
+    pub(crate) fn actuator_accel(
+        &self,
+        couplings: &CouplingBuffers<T>,
+        p: &ParticleBuffers<T>,
+        anchor_x: &CudaView<'_, T>,
+        anchor_v: &CudaSlice<T>,
+        accel: &mut CudaSlice<T>,
+    ) -> Result<(), CudaError> {
+        let n = self.n_i32();
+        let mut launch = self.stream.launch_builder(&self.kernels.actuator_accel);
+        launch
+            .arg(self.k)
+            .arg(&n)
+            .arg(&p.x)
+            .arg(&p.v)
+            .arg(&couplings.row_start)
+            .arg(&couplings.anchor)
+            .arg(&couplings.rest_offset)
+            .arg(anchor_x)
+            .arg(anchor_v)
+            .arg(accel);
+        // SAFETY: the arguments match actuator_accel's signature and every
+        // buffer holds what the launch shape indexes.
+        unsafe { launch.launch(launch_for(self.n)) }?;
+        Ok(())
     }
 
     /// Sorts the particles at `x` by cell.

@@ -199,6 +199,14 @@ impl<T: DeviceReal> CudaWorld<T> {
         Ok(result)
     }
 
+    /// Replaces the particle state (caller's order) on the host and the
+    /// device; the device's state is not fetched first.
+    pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), CudaError> {
+        self.host.set_state(state)?;
+        self.host_stale = false;
+        self.upload_state()
+    }
+
     /// Gives the world back to the host, its state up to date.
     pub fn into_host(mut self) -> Result<World<T>, CudaError> {
         self.download_state()?;
@@ -207,12 +215,13 @@ impl<T: DeviceReal> CudaWorld<T> {
 
     /// Positions in the caller's particle order, metres.
     pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, CudaError> {
-        let x = self.stream().clone_dtoh(&self.particles.x)?;
-        let mut out = vec![[0.0; 3]; self.particle_count()];
-        for (slot, &id) in self.host.id_of_slot().iter().enumerate() {
-            out[id as usize] = [0, 1, 2].map(|a| x[3 * slot + a].to_f64());
-        }
-        Ok(out)
+        let x = self.slot_positions()?;
+        Ok(self
+            .host
+            .to_caller_order(&x)
+            .iter()
+            .map(|p| [p.x.to_f64(), p.y.to_f64(), p.z.to_f64()])
+            .collect())
     }
 
     /// Positions in slot order (the world's internal order), from the
@@ -300,8 +309,9 @@ impl<T: DeviceReal> CudaWorld<T> {
         &self.couplings
     }
 
-    pub(crate) fn id_of_slot(&self) -> &[u32] {
-        self.host.id_of_slot()
+    /// The host world as it is (its particle state may lag the device's).
+    pub(crate) fn host_world(&self) -> &World<T> {
+        &self.host
     }
 
     pub(crate) fn consts(&self) -> &dm_mpm::state::Consts<T> {
@@ -448,21 +458,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         let mut laps = Laps::new(&stream, self.stage_seconds.as_mut());
         if let Some(offset) = anchor_offset {
             let anchor_x = c.anchor_x.slice(offset..);
-            let mut launch = stream.launch_builder(&self.kernels.actuator_accel);
-            launch
-                .arg(k)
-                .arg(&n_i32)
-                .arg(&p.x)
-                .arg(&p.v)
-                .arg(&c.row_start)
-                .arg(&c.anchor)
-                .arg(&c.rest_offset)
-                .arg(&anchor_x)
-                .arg(&c.anchor_v)
-                .arg(&mut self.accel);
-            // SAFETY: the arguments match actuator_accel's signature and
-            // every buffer holds what the launch shape indexes.
-            unsafe { launch.launch(launch_for(n)) }?;
+            launcher.actuator_accel(c, p, &anchor_x, &c.anchor_v, &mut self.accel)?;
             laps.lap(|s| &mut s.actuators)?;
         }
         launcher.sort(&p.x, &mut self.sort)?;

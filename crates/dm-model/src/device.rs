@@ -124,8 +124,10 @@ impl DeviceWorld {
 
     /// Replaces the particle state (caller's order).
     pub fn set_state(&mut self, state: &Particles<f32>) -> Result<(), ModelError> {
-        self.edit(|world| world.set_state(state))??;
-        Ok(())
+        match self {
+            DeviceWorld::Cpu(world) => Ok(world.set_state(state)?),
+            DeviceWorld::Cuda(world) => Ok(world.set_state(state)?),
+        }
     }
 
     /// The world with its particle state up to date (fetched from the GPU).

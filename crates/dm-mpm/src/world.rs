@@ -169,7 +169,8 @@ impl<T: Real> World<T> {
         Ok(())
     }
 
-    pub(crate) fn to_caller_order<V: Copy + Default>(&self, values: &[V]) -> Vec<V> {
+    /// Reorders values given in slot order into the caller's order.
+    pub fn to_caller_order<V: Copy + Default>(&self, values: &[V]) -> Vec<V> {
         let mut out = vec![V::default(); values.len()];
         for (slot, &id) in self.id_of_slot.iter().enumerate() {
             out[id as usize] = values[slot];
@@ -178,7 +179,7 @@ impl<T: Real> World<T> {
     }
 
     /// Reorders values given in the caller's particle order into slots.
-    pub(crate) fn to_slot_order<V: Copy>(&self, values: &[V]) -> Vec<V> {
+    pub fn to_slot_order<V: Copy>(&self, values: &[V]) -> Vec<V> {
         self.id_of_slot
             .iter()
             .map(|&id| values[id as usize])

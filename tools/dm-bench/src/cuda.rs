@@ -255,47 +255,115 @@ const GRADIENT_COSINE: f64 = 0.999;
 /// …and the norm within this fraction of the CPU's.
 const GRADIENT_NORM: f64 = 0.01;
 
+/// Vectors or matrices as their f64 entries.
+fn entries<T: DeviceReal, const R: usize, const C: usize>(
+    values: &[nalgebra::SMatrix<T, R, C>],
+) -> Vec<f64> {
+    values
+        .iter()
+        .flat_map(|m| m.iter().map(|c| c.to_f64()))
+        .collect()
+}
+
+fn scalars<T: DeviceReal>(values: &[T]) -> Vec<f64> {
+    values.iter().map(|c| c.to_f64()).collect()
+}
+
+fn weight_entries<T: DeviceReal>(weights: &[[T; 3]]) -> Vec<f64> {
+    weights.iter().flat_map(|w| w.map(|c| c.to_f64())).collect()
+}
+
 /// Every group of a substep's adjoint as f64 vectors, by name.
-fn gradient_groups<T: DeviceReal>(
+fn substep_groups<T: DeviceReal>(
     g: &dm_mpm::substep::SubstepGrads<T>,
 ) -> Vec<(&'static str, Vec<f64>)> {
-    let v3 = |v: &[dm_mpm::real::Vec3<T>]| {
-        v.iter()
-            .flat_map(|a| a.iter().map(|c| c.to_f64()))
-            .collect::<Vec<f64>>()
-    };
-    let m3 = |m: &[dm_mpm::real::Mat3<T>]| {
-        m.iter()
-            .flat_map(|a| a.iter().map(|c| c.to_f64()))
-            .collect::<Vec<f64>>()
-    };
-    let s = |v: &[T]| v.iter().map(|c| c.to_f64()).collect::<Vec<f64>>();
     vec![
-        ("x", v3(&g.state.x)),
-        ("v", v3(&g.state.v)),
-        ("F", m3(&g.state.f)),
-        ("C", m3(&g.state.c)),
-        ("mu", s(&g.mu)),
-        ("lambda", s(&g.lambda)),
-        (
-            "expert weights",
-            g.weights
-                .iter()
-                .flat_map(|w| w.map(|c| c.to_f64()))
-                .collect(),
-        ),
-        ("actuator accel", v3(&g.external_accel)),
+        ("x", entries(&g.state.x)),
+        ("v", entries(&g.state.v)),
+        ("F", entries(&g.state.f)),
+        ("C", entries(&g.state.c)),
+        ("mu", scalars(&g.mu)),
+        ("lambda", scalars(&g.lambda)),
+        ("expert weights", weight_entries(&g.weights)),
+        ("actuator accel", entries(&g.external_accel)),
         (
             "drag (summed)",
             (0..2)
                 .map(|e| g.effects.iter().map(|p| p[e].to_f64()).sum())
                 .collect(),
         ),
-        ("mass", s(&g.mass)),
-        ("gravity", g.gravity.iter().map(|c| c.to_f64()).collect()),
+        ("mass", scalars(&g.mass)),
+        ("gravity", entries(std::slice::from_ref(&g.gravity))),
         ("friction", vec![g.friction.to_f64()]),
         ("damping factor", vec![g.damping_factor.to_f64()]),
     ]
+}
+
+/// Every group of a frame's adjoint as f64 vectors, by name.
+fn frame_groups<T: DeviceReal>(g: &dm_mpm::tape::FrameGrads<T>) -> Vec<(&'static str, Vec<f64>)> {
+    let e = &g.effects;
+    vec![
+        ("x", entries(&g.state.x)),
+        ("v", entries(&g.state.v)),
+        ("F", entries(&g.state.f)),
+        ("C", entries(&g.state.c)),
+        ("mu", scalars(&g.mu)),
+        ("lambda", scalars(&g.lambda)),
+        ("expert weights", weight_entries(&g.weights)),
+        ("mass", scalars(&g.mass)),
+        ("gains", vec![g.gains.kp, g.gains.kd]),
+        ("drag", vec![e.air_drag_linear, e.air_drag_quadratic]),
+        ("gravity", e.gravity.to_vec()),
+        ("friction", vec![e.floor_friction]),
+        ("particle damping", vec![e.particle_damping]),
+        (
+            "anchors",
+            g.anchors_from
+                .iter()
+                .chain(&g.anchors_to)
+                .flatten()
+                .copied()
+                .collect(),
+        ),
+    ]
+}
+
+/// Prints each group's agreement after `label`; whether every group
+/// passes.
+fn report_agreement(
+    label: &str,
+    want: Vec<(&'static str, Vec<f64>)>,
+    got: Vec<(&'static str, Vec<f64>)>,
+) -> bool {
+    let mut passed = true;
+    let mut line = String::new();
+    for ((name, a), (_, b)) in want.into_iter().zip(got) {
+        let (cosine, ratio) = agreement(&a, &b);
+        let ok = cosine >= GRADIENT_COSINE && (ratio - 1.0).abs() <= GRADIENT_NORM;
+        passed &= ok;
+        line.push_str(&format!(
+            "{name} {cosine:.6}/{ratio:.5}{}; ",
+            if ok { "" } else { " FAIL" }
+        ));
+    }
+    println!("{label} (cosine/norm ratio): {line}");
+    passed
+}
+
+/// The CPU and CUDA worlds of `scene` after its first frame, the CUDA
+/// world holding the CPU world's state (so both differentiate the same).
+fn worlds_after_first_frame<T: DeviceReal>(
+    device: &Arc<CudaDevice>,
+    scene: ParityScene,
+    particles: usize,
+) -> Result<(World<T>, CudaWorld<T>)> {
+    let mut cpu = parity_world::<T>(scene, particles)?;
+    let (from, to, active) = parity_anchors(scene, 0);
+    cpu.step_frame(&from, &to, &active)?;
+    let mut gpu = CudaWorld::new(parity_world::<T>(scene, particles)?, device.clone())?;
+    gpu.step_frame(&from, &to, &active)?;
+    gpu.set_state(&cpu.state())?;
+    Ok((cpu, gpu))
 }
 
 /// One substep's adjoint on both devices, at the state after the first
@@ -309,14 +377,9 @@ fn gradient_parity_run<T: DeviceReal>(
     use dm_mpm::g2p_backward::ParticleGrads;
     use dm_mpm::real::{Mat3, Vec3};
     use dm_mpm::substep::{SubstepInputs, SubstepScratch, substep_backward};
-    let mut cpu = parity_world::<T>(scene, particles)?;
-    let (from, to, active) = parity_anchors(scene, 0);
-    cpu.step_frame(&from, &to, &active)?;
-    let mut gpu = CudaWorld::new(parity_world::<T>(scene, particles)?, device.clone())?;
-    gpu.step_frame(&from, &to, &active)?;
-    // The same state on both, and the next frame's first-substep forces.
+    let (cpu, mut gpu) = worlds_after_first_frame::<T>(device, scene, particles)?;
+    // The next frame's first-substep forces.
     let before = cpu.slot_particles().clone();
-    gpu.edit(|w| *w.slot_particles_mut() = before.clone())?;
     let (from, to, _) = parity_anchors(scene, 1);
     let frame_dt = cpu.config().dt * cpu.config().substeps_per_frame as f64;
     let anchor_x: Vec<Vec3<T>> = from.iter().map(|&p| dm_mpm::real::vec3(p)).collect();
@@ -346,22 +409,8 @@ fn gradient_parity_run<T: DeviceReal>(
     let mut scratch = SubstepScratch::new(cpu.config().grid_res);
     let want = substep_backward(&k, &inputs, &before, &grad_after, &mut scratch)?;
     let got = gpu.substep_backward(&before, Some(&accel), &grad_after)?;
-    let precision = T::PRECISION.c_type();
-    let mut passed = true;
-    let mut worst = String::new();
-    for ((name, a), (_, b)) in gradient_groups(&want)
-        .into_iter()
-        .zip(gradient_groups(&got))
-    {
-        let (cosine, ratio) = agreement(&a, &b);
-        let ok = cosine >= GRADIENT_COSINE && (ratio - 1.0).abs() <= GRADIENT_NORM;
-        passed &= ok;
-        worst.push_str(&format!(
-            "{name} {cosine:.6}/{ratio:.5}{}; ",
-            if ok { "" } else { " FAIL" }
-        ));
-    }
-    println!("gradient parity {scene:?} {precision} (cosine/norm ratio): {worst}");
+    let label = format!("gradient parity {scene:?} {}", T::PRECISION.c_type());
+    let passed = report_agreement(&label, substep_groups(&want), substep_groups(&got));
     Ok(passed && frame_gradient_parity_run::<T>(device, scene, particles)?)
 }
 
@@ -375,19 +424,12 @@ fn frame_gradient_parity_run<T: DeviceReal>(
 ) -> Result<bool> {
     use dm_mpm::g2p_backward::ParticleGrads;
     use dm_mpm::real::Vec3;
-    use dm_mpm::tape::FrameGrads;
-    let mut cpu = parity_world::<T>(scene, particles)?;
-    let (from, to, active) = parity_anchors(scene, 0);
-    cpu.step_frame(&from, &to, &active)?;
-    let mut gpu = CudaWorld::new(parity_world::<T>(scene, particles)?, device.clone())?;
-    gpu.step_frame(&from, &to, &active)?;
-    let state = cpu.state();
-    gpu.edit(|w| w.set_state(&state))??;
+    let (mut cpu, mut gpu) = worlds_after_first_frame::<T>(device, scene, particles)?;
     let (from, to, active) = parity_anchors(scene, 1);
     let window = cpu.config().substeps_per_frame;
     let cpu_tape = cpu.step_frame_taped(&from, &to, &active, window)?;
     let gpu_tape = gpu.step_frame_taped(&from, &to, &active, window)?;
-    let n = state.len();
+    let n = cpu.particle_count();
     let upstream = ParticleGrads {
         x: (0..n)
             .map(|p| Vec3::new(T::one(), T::lit(-0.5), T::lit(0.25)) * T::lit(p as f64 / n as f64))
@@ -396,75 +438,15 @@ fn frame_gradient_parity_run<T: DeviceReal>(
     };
     let want = cpu.backward_frame(&cpu_tape, &upstream)?;
     let got = gpu.backward_frame(&gpu_tape, &upstream)?;
-    let groups = |g: &FrameGrads<T>| -> Vec<(&'static str, Vec<f64>)> {
-        let v3 = |v: &[Vec3<T>]| {
-            v.iter()
-                .flat_map(|a| a.iter().map(|c| c.to_f64()))
-                .collect::<Vec<f64>>()
-        };
-        let s = |v: &[T]| v.iter().map(|c| c.to_f64()).collect::<Vec<f64>>();
-        let e = &g.effects;
-        vec![
-            ("x", v3(&g.state.x)),
-            ("v", v3(&g.state.v)),
-            (
-                "F",
-                g.state
-                    .f
-                    .iter()
-                    .flat_map(|m| m.iter().map(|c| c.to_f64()))
-                    .collect(),
-            ),
-            (
-                "C",
-                g.state
-                    .c
-                    .iter()
-                    .flat_map(|m| m.iter().map(|c| c.to_f64()))
-                    .collect(),
-            ),
-            ("mu", s(&g.mu)),
-            ("lambda", s(&g.lambda)),
-            (
-                "expert weights",
-                g.weights
-                    .iter()
-                    .flat_map(|w| w.map(|c| c.to_f64()))
-                    .collect(),
-            ),
-            ("mass", s(&g.mass)),
-            ("gains", vec![g.gains.kp, g.gains.kd]),
-            ("drag", vec![e.air_drag_linear, e.air_drag_quadratic]),
-            ("gravity", e.gravity.to_vec()),
-            ("friction", vec![e.floor_friction]),
-            ("particle damping", vec![e.particle_damping]),
-            (
-                "anchors",
-                g.anchors_from
-                    .iter()
-                    .chain(&g.anchors_to)
-                    .flatten()
-                    .copied()
-                    .collect(),
-            ),
-        ]
-    };
-    let mut passed = true;
-    let mut line = String::new();
-    for ((name, a), (_, b)) in groups(&want).into_iter().zip(groups(&got)) {
-        let (cosine, ratio) = agreement(&a, &b);
-        let ok = cosine >= GRADIENT_COSINE && (ratio - 1.0).abs() <= GRADIENT_NORM;
-        passed &= ok;
-        line.push_str(&format!(
-            "{name} {cosine:.6}/{ratio:.5}{}; ",
-            if ok { "" } else { " FAIL" }
-        ));
-    }
-    println!(
-        "frame gradient parity {scene:?} {} ({window} substeps; cosine/norm ratio): {line}",
+    let label = format!(
+        "frame gradient parity {scene:?} {}, {window} substeps",
         T::PRECISION.c_type()
     );
-    Ok(passed)
+    Ok(report_agreement(
+        &label,
+        frame_groups(&want),
+        frame_groups(&got),
+    ))
 }
 
 /// `dm-bench grad --device cuda`: forward and backward of one window of

@@ -17,7 +17,7 @@ pub mod session;
 
 pub use scene::{SceneView, Sprites, draw_sprites};
 #[cfg(feature = "server")]
-pub use server::{Playground, serve};
+pub use server::{PageLimits, Playground, serve};
 #[cfg(feature = "cli")]
 pub use session::PlayArgs;
 pub use session::{MaterialControl, PlayOptions, Session, SessionState, component_sizes};

@@ -7,16 +7,24 @@
 //! sprites, fields: [`SceneMessage`]), `GET /api/state` (the session's
 //! [`crate::SessionState`]), `GET /api/components` (connected pieces of the
 //! object), `POST /api/command` and `GET /ws` (the same [`Command`]s).
+//!
+//! One page cannot cost the others more than [`PageLimits`] allows: a page
+//! that sends binary data, oversized or too many commands, keeps sending
+//! malformed ones, or stops reading its frames is disconnected, with the
+//! reason logged to stderr and sent in the close frame.
 
+use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, Weak};
 use std::time::{Duration, Instant};
 
 use axum::Json;
 use axum::Router;
-use axum::extract::State;
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::body::Bytes;
+use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_code};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -98,25 +106,76 @@ pub struct SceneMessage {
     pub hand_count: usize,
 }
 
+/// What one page may cost the playground. A page over a limit is
+/// disconnected (the page limit refuses the connection instead), so no
+/// page can hold more than one frame and one message of server memory.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PageLimits {
+    /// Pages connected at once; more are refused with 503.
+    pub max_pages: usize,
+    /// Largest message a page may send, bytes (commands are under 300).
+    pub max_message_bytes: usize,
+    /// Commands per second a page may send on average (a page sends one
+    /// per key change or click)...
+    pub commands_per_s: f64,
+    /// ...and in one burst.
+    pub command_burst: f64,
+    /// Malformed commands in a row before the page is disconnected.
+    pub max_bad_commands: usize,
+    /// How long a frame may wait for a page that does not read it.
+    pub send_timeout: Duration,
+}
+
+impl Default for PageLimits {
+    fn default() -> Self {
+        Self {
+            max_pages: 32,
+            max_message_bytes: 16 * 1024,
+            commands_per_s: 100.0,
+            command_burst: 200.0,
+            max_bad_commands: 16,
+            send_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Disconnection reasons kept for [`Playground::dropped_pages`].
+const DROPPED_PAGES_KEPT: usize = 64;
+
 /// The running playground: the session, the latest frame, where
-/// recordings go.
+/// recordings go, the pages connected.
 #[derive(Debug)]
 pub struct Playground {
     session: Mutex<Session>,
-    frames: watch::Sender<Arc<Vec<u8>>>,
+    frames: watch::Sender<Bytes>,
     record_dir: PathBuf,
+    limits: PageLimits,
+    pages: AtomicUsize,
+    dropped: Mutex<VecDeque<String>>,
 }
 
 impl Playground {
-    /// Starts the simulation thread of `session`; it stops when the
-    /// playground is dropped.
+    /// Starts the simulation thread of `session` with the default page
+    /// limits; it stops when the playground is dropped.
     pub fn start(session: Session, record_dir: PathBuf) -> Arc<Self> {
-        let first = Arc::new(encode_frame(&session));
+        Self::start_with_limits(session, record_dir, PageLimits::default())
+    }
+
+    /// [`Playground::start`] with other page limits.
+    pub fn start_with_limits(
+        session: Session,
+        record_dir: PathBuf,
+        limits: PageLimits,
+    ) -> Arc<Self> {
+        let first = Bytes::from(encode_frame(&session));
         let (frames, _) = watch::channel(first);
         let playground = Arc::new(Self {
             session: Mutex::new(session),
             frames,
             record_dir,
+            limits,
+            pages: AtomicUsize::new(0),
+            dropped: Mutex::new(VecDeque::new()),
         });
         let weak = Arc::downgrade(&playground);
         std::thread::Builder::new()
@@ -134,6 +193,28 @@ impl Playground {
 
     pub fn state(&self) -> SessionState {
         self.session().state()
+    }
+
+    /// Pages connected now.
+    pub fn page_count(&self) -> usize {
+        self.pages.load(Ordering::SeqCst)
+    }
+
+    /// Why the most recently disconnected misbehaving pages were
+    /// disconnected (`ADDRESS: REASON`, oldest first, the last 64).
+    pub fn dropped_pages(&self) -> Vec<String> {
+        let dropped = self.dropped.lock().unwrap_or_else(|e| e.into_inner());
+        dropped.iter().cloned().collect()
+    }
+
+    fn log_dropped(&self, page: SocketAddr, reason: &str) {
+        let line = format!("{page}: {reason}");
+        eprintln!("dm-play: disconnected page {line}");
+        let mut dropped = self.dropped.lock().unwrap_or_else(|e| e.into_inner());
+        if dropped.len() == DROPPED_PAGES_KEPT {
+            dropped.pop_front();
+        }
+        dropped.push_back(line);
     }
 
     pub fn scene(&self) -> SceneMessage {
@@ -296,7 +377,7 @@ fn simulation_loop(playground: Weak<Playground>) {
             let _ = s.step();
             (encode_frame(&s), s.frame_dt())
         };
-        p.frames.send_replace(Arc::new(frame));
+        p.frames.send_replace(Bytes::from(frame));
         drop(p);
         let spare = Duration::from_secs_f64(dt).saturating_sub(clock.elapsed());
         // Always yield a little so commands get the lock between frames.
@@ -314,6 +395,7 @@ pub fn router(playground: Arc<Playground>) -> Router {
         .route("/api/components", get(components))
         .route("/api/command", post(command))
         .route("/ws", get(websocket))
+        .layer(DefaultBodyLimit::max(playground.limits.max_message_bytes))
         .with_state(playground)
 }
 
@@ -322,7 +404,11 @@ pub async fn serve(
     listener: tokio::net::TcpListener,
     playground: Arc<Playground>,
 ) -> std::io::Result<()> {
-    axum::serve(listener, router(playground)).await
+    axum::serve(
+        listener,
+        router(playground).into_make_service_with_connect_info::<SocketAddr>(),
+    )
+    .await
 }
 
 /// Starts a playground server on its own thread and runtime (tests,
@@ -331,6 +417,7 @@ pub fn spawn_background(
     session: Session,
     addr: SocketAddr,
     record_dir: PathBuf,
+    limits: PageLimits,
 ) -> Result<(SocketAddr, Arc<Playground>), PlayError> {
     let io = |source| PlayError::Io {
         path: PathBuf::from(addr.to_string()),
@@ -339,7 +426,7 @@ pub fn spawn_background(
     let listener = std::net::TcpListener::bind(addr).map_err(io)?;
     listener.set_nonblocking(true).map_err(io)?;
     let bound = listener.local_addr().map_err(io)?;
-    let playground = Playground::start(session, record_dir);
+    let playground = Playground::start_with_limits(session, record_dir, limits);
     let served = playground.clone();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -415,47 +502,179 @@ async fn command(
     (status, Json(reply))
 }
 
-async fn websocket(State(p): State<Arc<Playground>>, upgrade: WebSocketUpgrade) -> Response {
-    upgrade.on_upgrade(move |socket| page_connection(socket, p))
+async fn websocket(
+    State(p): State<Arc<Playground>>,
+    ConnectInfo(page): ConnectInfo<SocketAddr>,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let Some(slot) = PageSlot::take(&p) else {
+        let message = format!(
+            "the playground serves at most {} pages at once",
+            p.limits.max_pages
+        );
+        return (StatusCode::SERVICE_UNAVAILABLE, message).into_response();
+    };
+    upgrade
+        .max_message_size(p.limits.max_message_bytes)
+        .max_frame_size(p.limits.max_message_bytes)
+        .on_upgrade(move |socket| async move {
+            if let Err(reason) = page_connection(socket, &p).await {
+                p.log_dropped(page, &reason);
+            }
+            drop(slot);
+        })
 }
 
-/// One page: frames out as they are published, commands in.
-async fn page_connection(mut socket: WebSocket, p: Arc<Playground>) {
+/// A connected page's place in [`Playground`]'s count, given back on drop.
+struct PageSlot(Arc<Playground>);
+
+impl PageSlot {
+    fn take(p: &Arc<Playground>) -> Option<Self> {
+        let max = p.limits.max_pages;
+        p.pages
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| {
+                (n < max).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Self(p.clone()))
+    }
+}
+
+impl Drop for PageSlot {
+    fn drop(&mut self) {
+        self.0.pages.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// The commands a page may still send now: refilled at `commands_per_s`
+/// up to `command_burst`.
+struct CommandBudget {
+    tokens: f64,
+    refilled: Instant,
+}
+
+impl CommandBudget {
+    fn new(limits: &PageLimits) -> Self {
+        Self {
+            tokens: limits.command_burst,
+            refilled: Instant::now(),
+        }
+    }
+
+    fn spend(&mut self, limits: &PageLimits) -> bool {
+        let now = Instant::now();
+        let refill = limits.commands_per_s * (now - self.refilled).as_secs_f64();
+        self.tokens = (self.tokens + refill).min(limits.command_burst);
+        self.refilled = now;
+        if self.tokens < 1.0 {
+            return false;
+        }
+        self.tokens -= 1.0;
+        true
+    }
+}
+
+/// One page: frames out as they are published, commands in. Returns why a
+/// misbehaving page was disconnected (after telling it in a close frame);
+/// `Ok` when the page left or the playground stopped.
+async fn page_connection(mut socket: WebSocket, p: &Arc<Playground>) -> Result<(), String> {
+    let limits = p.limits;
     let mut frames = p.frames.subscribe();
+    let mut budget = CommandBudget::new(&limits);
+    let mut bad_in_a_row = 0;
     loop {
         tokio::select! {
             changed = frames.changed() => {
                 if changed.is_err() {
-                    return;
+                    return Ok(());
                 }
+                // Bytes: every page shares the one encoded frame.
                 let frame = frames.borrow_and_update().clone();
-                if socket.send(Message::Binary(frame.as_ref().clone().into())).await.is_err() {
-                    return;
+                match tokio::time::timeout(limits.send_timeout, socket.send(Message::Binary(frame))).await {
+                    Ok(Ok(())) => {}
+                    Ok(Err(_)) => return Ok(()),
+                    Err(_) => {
+                        return Err(format!(
+                            "did not read its frames for {:.1} s",
+                            limits.send_timeout.as_secs_f64()
+                        ));
+                    }
                 }
             }
             incoming = socket.recv() => {
                 let text = match incoming {
                     Some(Ok(Message::Text(text))) => text,
-                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
-                    Some(Ok(_)) => continue,
+                    Some(Ok(Message::Close(_))) | None => return Ok(()),
+                    Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
+                    Some(Ok(Message::Binary(data))) => {
+                        let reason = format!(
+                            "sent {} bytes of binary data (commands are JSON text)",
+                            data.len()
+                        );
+                        return Err(close(socket, close_code::UNSUPPORTED, reason).await);
+                    }
+                    // Oversized messages end here: the socket cannot be read on.
+                    Some(Err(e)) => return Err(format!("unreadable message: {e}")),
                 };
+                if !budget.spend(&limits) {
+                    let reason = format!(
+                        "sent more than {:.0} commands per second",
+                        limits.commands_per_s
+                    );
+                    return Err(close(socket, close_code::POLICY, reason).await);
+                }
                 let reply = match serde_json::from_str::<Command>(text.as_str()) {
                     Ok(command) => {
+                        bad_in_a_row = 0;
                         let p = p.clone();
                         tokio::task::spawn_blocking(move || p.command_reply(command))
                             .await
                             .unwrap_or_else(|e| Reply { ok: false, message: e.to_string(), bundle: None })
                     }
-                    Err(e) => Reply { ok: false, message: format!("bad command: {e}"), bundle: None },
+                    Err(e) => {
+                        bad_in_a_row += 1;
+                        if bad_in_a_row >= limits.max_bad_commands {
+                            let reason = format!("sent {bad_in_a_row} malformed commands in a row (last: {e})");
+                            return Err(close(socket, close_code::POLICY, reason).await);
+                        }
+                        Reply { ok: false, message: format!("bad command: {e}"), bundle: None }
+                    }
                 };
                 if reply.ok && reply.message.is_empty() {
                     continue;
                 }
                 let json = serde_json::to_string(&reply).unwrap_or_default();
-                if socket.send(Message::Text(json.into())).await.is_err() {
-                    return;
+                match tokio::time::timeout(limits.send_timeout, socket.send(Message::Text(json.into()))).await {
+                    Ok(Ok(())) => {}
+                    Ok(Err(_)) => return Ok(()),
+                    Err(_) => {
+                        return Err(format!(
+                            "did not read its replies for {:.1} s",
+                            limits.send_timeout.as_secs_f64()
+                        ));
+                    }
                 }
             }
         }
     }
+}
+
+/// Tells the page why it is disconnected (best effort: it may not read)
+/// and returns the reason.
+async fn close(mut socket: WebSocket, code: u16, reason: String) -> String {
+    // A close frame's reason holds at most 123 bytes.
+    let mut end = reason.len().min(120);
+    while !reason.is_char_boundary(end) {
+        end -= 1;
+    }
+    let frame = CloseFrame {
+        code,
+        reason: reason[..end].into(),
+    };
+    let _ = tokio::time::timeout(
+        Duration::from_secs(1),
+        socket.send(Message::Close(Some(frame))),
+    )
+    .await;
+    reason
 }

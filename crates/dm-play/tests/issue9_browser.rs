@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use dm_play::{PlayOptions, open_session, server::spawn_background};
+use dm_play::{PageLimits, PlayOptions, open_session, server::spawn_background};
 use fantoccini::actions::{InputSource, KeyAction, KeyActions};
 use fantoccini::{Client, ClientBuilder, Locator};
 use serde_json::{Value, json};
@@ -204,6 +204,7 @@ async fn issue9_playground_in_headless_chromium() {
         session,
         "127.0.0.1:0".parse().expect("address"),
         tiny.dir.path().join("recordings"),
+        PageLimits::default(),
     )
     .expect("server starts");
 

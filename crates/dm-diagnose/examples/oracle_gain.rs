@@ -68,7 +68,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 scene_config_with_effect(seed, e),
                 format!("hidden{seed}-{}-{}", e.name.name(), e.magnitude),
             ),
-            None => (scene_config(seed, false).0, format!("hidden{seed}")),
+            None => (
+                scene_config(seed, false, args.variant.engine.unwrap_or_default()).0,
+                format!("hidden{seed}"),
+            ),
         };
         let mut fit = fit.clone();
         args.variant.apply(&mut config, &mut fit);

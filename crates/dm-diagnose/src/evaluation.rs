@@ -6,7 +6,7 @@
 use crate::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
 use dm_fit::run::{FitOptions, run_fit};
 use dm_model::{ModelOptions, ResidualKind};
-use dm_synth::{EffectSpec, Preset, SynthConfig, draw_hidden_effect, generate};
+use dm_synth::{EffectSpec, Engine, Preset, SynthConfig, draw_hidden_effect_among, generate};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -84,13 +84,23 @@ pub struct SceneResult {
     pub track_before: f64,
     pub track_after: f64,
     pub parameter_relative_error: Option<f64>,
+    /// How far the hidden effect moves the object against its null twin
+    /// (m; the truth file's `effect_displacement_m`, foreign scenes only).
+    #[serde(default)]
+    pub effect_displacement_m: Option<f64>,
 }
 
-/// The scene of evaluation draw `seed`: a hidden effect (preset and
-/// magnitude drawn by [`draw_hidden_effect`]) or, for a null scene, a
-/// preset drawn from the seed and no effect.
-pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) {
-    let (preset, effect) = draw_hidden_effect(seed);
+/// A foreign scene's effect counts towards the naming rate when it moves
+/// the object by at least this much against its null twin (m): below it
+/// the clip may not show the effect at all.
+pub const SHOWN_DISPLACEMENT_M: f64 = 0.010;
+
+/// The scene of evaluation draw `seed` made by `engine`: a hidden effect
+/// (preset and magnitude drawn by [`draw_hidden_effect_among`] from the
+/// effects the engine can express) or, for a null scene, a preset drawn
+/// from the seed and no effect.
+pub fn scene_config(seed: u64, null: bool, engine: Engine) -> (SynthConfig, Option<EffectSpec>) {
+    let (preset, effect) = draw_hidden_effect_among(seed, &engine.effects());
     let (preset, effect) = if null {
         (
             [Preset::Rope, Preset::Cloth, Preset::Toy][(seed % 3) as usize],
@@ -100,6 +110,7 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
         (preset, Some(effect))
     };
     let mut config = SynthConfig::diagnosis(preset, seed);
+    config.engine = engine;
     config.effect = effect;
     config.action = effect.and_then(|e| e.name.exciting_action());
     (config, effect)
@@ -110,7 +121,7 @@ pub fn scene_config(seed: u64, null: bool) -> (SynthConfig, Option<EffectSpec>) 
 /// the others with the seed's action): for sweeps of one effect's
 /// magnitude.
 pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
-    let (mut config, _) = scene_config(seed, false);
+    let (mut config, _) = scene_config(seed, false, Engine::Mpm);
     config.effect = Some(effect);
     config.action = effect.name.exciting_action();
     config
@@ -124,6 +135,10 @@ pub fn scene_config_with_effect(seed: u64, effect: EffectSpec) -> SynthConfig {
 /// directories of their own ([`SceneVariant::scene_dir`]).
 #[derive(clap::Args, Clone, Debug, Default, PartialEq)]
 pub struct SceneVariant {
+    /// Make the truth with this engine instead of dm-mpm (suffix
+    /// -mujoco): the effects are drawn among those it can express.
+    #[arg(long, value_enum, value_name = "ENGINE")]
+    pub engine: Option<Engine>,
     /// Film N frames instead of the evaluation's 36, the hands' motion
     /// stretched over the clip; the last 30 % stay held out (suffix -fN).
     #[arg(long, value_name = "N")]
@@ -177,6 +192,9 @@ impl SceneVariant {
     /// (empty for the evaluation itself).
     pub fn suffix(&self) -> String {
         let mut suffix = String::new();
+        if let Some(engine @ Engine::Mujoco) = self.engine {
+            suffix.push_str(&format!("-{}", engine.name()));
+        }
         if let Some(n) = self.frames {
             suffix.push_str(&format!("-f{n}"));
         }
@@ -219,6 +237,9 @@ impl SceneVariant {
 
     /// Changes the scene and the fit as the variant says.
     pub fn apply(&self, config: &mut SynthConfig, fit: &mut FitOptions) {
+        if let Some(engine) = self.engine {
+            config.engine = engine;
+        }
         if let Some(n) = self.frames {
             config.frames = n;
         }
@@ -303,7 +324,7 @@ pub fn run_scene(
     fit: &FitOptions,
     options: &DiagnoseOptions,
 ) -> Result<(SceneResult, Diagnosis), DiagnoseError> {
-    let (mut config, effect) = scene_config(seed, null);
+    let (mut config, effect) = scene_config(seed, null, variant.engine.unwrap_or_default());
     let mut fit = fit.clone();
     variant.apply(&mut config, &mut fit);
     prepare_scene(&config, dir, &fit)?;
@@ -327,6 +348,10 @@ pub fn run_scene(
         track_before: d.gain.track_before,
         track_after: d.gain.track_after,
         parameter_relative_error: d.truth.as_ref().and_then(|t| t.relative_error),
+        effect_displacement_m: dm_bundle::read_json::<dm_synth::TruthFile>(
+            &dir.join("scene.truth.json"),
+        )?
+        .effect_displacement_m,
     };
     Ok((result, d))
 }
@@ -387,6 +412,21 @@ pub fn confusion_markdown(results: &[SceneResult]) -> String {
         };
         s.push_str(&format!(" {correct}/{} | {gain} |\n", in_row.len()));
     }
+    let shown: Vec<&SceneResult> = results
+        .iter()
+        .filter(|r| {
+            r.effect_displacement_m
+                .is_some_and(|d| d >= SHOWN_DISPLACEMENT_M)
+        })
+        .collect();
+    if !shown.is_empty() {
+        let named = shown.iter().filter(|r| r.cause == r.expected).count();
+        s.push_str(&format!(
+            "\nEffects that move the object by ≥ {:.0} mm against their null twin: named {named}/{}.\n",
+            1e3 * SHOWN_DISPLACEMENT_M,
+            shown.len()
+        ));
+    }
     s
 }
 
@@ -395,10 +435,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn foreign_draws_hide_only_what_the_engine_expresses() {
+        for seed in 0..100 {
+            let (config, effect) = scene_config(seed, false, Engine::Mujoco);
+            let effect = effect.expect("a hidden scene has an effect");
+            assert!(Engine::Mujoco.expresses(effect.name), "seed {seed}");
+            assert_eq!(config.engine, Engine::Mujoco);
+        }
+        // dm-mpm's draws are the library's draws, unchanged.
+        for seed in 0..50 {
+            let (_, effect) = scene_config(seed, false, Engine::Mpm);
+            assert_eq!(effect, Some(dm_synth::draw_hidden_effect(seed).1));
+        }
+    }
+
+    #[test]
     fn issue6_friction_scenes_are_filmed_with_a_push() {
         let mut friction_draws = 0;
         for seed in 0..300 {
-            let (config, effect) = scene_config(seed, false);
+            let (config, effect) = scene_config(seed, false, Engine::Mpm);
             let effect = effect.expect("a hidden scene has an effect");
             if effect.name == dm_synth::EffectName::FloorFriction {
                 friction_draws += 1;
@@ -406,14 +461,14 @@ mod tests {
             } else {
                 assert_eq!(config.action, None, "seed {seed} keeps its own action");
             }
-            assert_eq!(scene_config(seed, true).0.action, None);
+            assert_eq!(scene_config(seed, true, Engine::Mpm).0.action, None);
         }
         assert!(friction_draws > 10, "{friction_draws} friction draws");
     }
 
     #[test]
     fn issue6_scene_variant_names_and_applies_each_setting() {
-        let (base_config, _) = scene_config(1031, false);
+        let (base_config, _) = scene_config(1031, false, Engine::Mpm);
         let base_fit = evaluation_fit_options();
         // The default variant is the evaluation itself.
         let (mut config, mut fit) = (base_config.clone(), base_fit.clone());
@@ -422,6 +477,7 @@ mod tests {
         assert_eq!((&config, &fit), (&base_config, &base_fit));
 
         let variant = SceneVariant {
+            engine: None,
             frames: Some(72),
             grid: Some(48),
             grasp_radius: Some(0.014),
@@ -447,6 +503,16 @@ mod tests {
         assert_eq!(fit.model.grasp_radius, Some(0.014));
         assert_eq!(fit.model.patches, 1);
         assert_eq!((fit.iters, fit.stage2_iters, fit.gain_evals), (12, 18, 24));
+        // A foreign variant names its engine first and makes the truth with it.
+        let foreign = SceneVariant {
+            engine: Some(Engine::Mujoco),
+            frames: Some(72),
+            ..SceneVariant::default()
+        };
+        assert_eq!(foreign.suffix(), "-mujoco-f72");
+        let mut foreign_config = base_config.clone();
+        foreign.apply(&mut foreign_config, &mut fit.clone());
+        assert_eq!(foreign_config.engine, Engine::Mujoco);
         // Nothing else changes: the effect, the preset, the fit's rates.
         assert_eq!(config.effect, base_config.effect);
         assert_eq!(config.preset, base_config.preset);

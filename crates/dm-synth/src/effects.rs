@@ -191,7 +191,14 @@ impl EffectSpec {
 /// effect from the library with a magnitude uniform in its
 /// [`EffectName::test_range`] — all from `seed`.
 pub fn draw_hidden_effect(seed: u64) -> (crate::Preset, EffectSpec) {
+    draw_hidden_effect_among(seed, &EffectName::ALL)
+}
+
+/// [`draw_hidden_effect`] among `names` only (the effects a foreign engine
+/// can express); with every name it is `draw_hidden_effect` itself.
+pub fn draw_hidden_effect_among(seed: u64, names: &[EffectName]) -> (crate::Preset, EffectSpec) {
     use rand::{RngExt, SeedableRng};
+    assert!(!names.is_empty(), "an effect to draw from");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(crate::splitmix(seed ^ 0x00e7_7ec7));
     let presets = [
         crate::Preset::Rope,
@@ -199,7 +206,7 @@ pub fn draw_hidden_effect(seed: u64) -> (crate::Preset, EffectSpec) {
         crate::Preset::Toy,
     ];
     let preset = presets[rng.random_range(0..presets.len())];
-    let name = EffectName::ALL[rng.random_range(0..EffectName::ALL.len())];
+    let name = names[rng.random_range(0..names.len())];
     let [lo, hi] = name.test_range();
     let magnitude = lo + (hi - lo) * rng.random::<f64>();
     (preset, EffectSpec { name, magnitude })
@@ -232,5 +239,21 @@ mod tests {
             seen.insert(spec.name.name());
         }
         assert_eq!(seen.len(), EffectName::ALL.len());
+    }
+
+    #[test]
+    fn draws_among_some_effects_keep_to_them() {
+        let names = [EffectName::GroundTilt, EffectName::AirDrag];
+        let mut seen = std::collections::BTreeSet::new();
+        for seed in 0..100 {
+            let (_, spec) = draw_hidden_effect_among(seed, &names);
+            assert!(
+                names.contains(&spec.name),
+                "seed {seed}: {}",
+                spec.name.name()
+            );
+            seen.insert(spec.name.name());
+        }
+        assert_eq!(seen.len(), names.len());
     }
 }

@@ -44,6 +44,25 @@ impl Engine {
             Engine::Mujoco => "mujoco",
         }
     }
+
+    /// Whether this engine can hide `effect` in a scene.
+    pub fn expresses(self, effect: EffectName) -> bool {
+        match self {
+            Engine::Mpm => true,
+            Engine::Mujoco => !matches!(
+                effect,
+                EffectName::AirDragQuadratic | EffectName::Plasticity | EffectName::StiffInclusion
+            ),
+        }
+    }
+
+    /// The library effects this engine can hide.
+    pub fn effects(self) -> Vec<EffectName> {
+        EffectName::ALL
+            .into_iter()
+            .filter(|&e| self.expresses(e))
+            .collect()
+    }
 }
 
 /// The simulator script, written beside each request.
@@ -281,24 +300,20 @@ pub struct ForeignTruth {
     pub effect_displacement_m: Option<f64>,
 }
 
-fn unsupported(effect: EffectName) -> SynthError {
-    SynthError::InvalidOption {
-        option: "--effect".into(),
-        problem: format!(
-            "`{}` cannot be hidden in a MuJoCo scene (supported: air_drag, floor_friction, viscous_damping, ground_tilt, actuator_lag, density_variation)",
-            effect.name()
-        ),
-    }
-}
-
 /// Checks that the engine can express `config`'s effect.
 pub fn check_effect(config: &SynthConfig) -> Result<(), SynthError> {
     match config.effect.map(|e| e.name) {
-        Some(
-            name @ (EffectName::AirDragQuadratic
-            | EffectName::Plasticity
-            | EffectName::StiffInclusion),
-        ) => Err(unsupported(name)),
+        Some(name) if !Engine::Mujoco.expresses(name) => {
+            let supported: Vec<&str> = Engine::Mujoco.effects().iter().map(|e| e.name()).collect();
+            Err(SynthError::InvalidOption {
+                option: "--effect".into(),
+                problem: format!(
+                    "`{}` cannot be hidden in a MuJoCo scene (supported: {})",
+                    name.name(),
+                    supported.join(", ")
+                ),
+            })
+        }
         _ => Ok(()),
     }
 }

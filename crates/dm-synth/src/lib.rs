@@ -18,7 +18,7 @@ pub mod shapes;
 pub mod truth;
 
 pub use actions::Action;
-pub use effects::{EffectName, EffectSpec, draw_hidden_effect};
+pub use effects::{EffectName, EffectSpec, draw_hidden_effect, draw_hidden_effect_among};
 pub use foreign::Engine;
 pub use shapes::Preset;
 pub use truth::{

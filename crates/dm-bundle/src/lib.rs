@@ -22,7 +22,7 @@ pub use error::{BundleError, IO_FIELD, Result};
 pub use meta::{
     BundleMeta, CAMERA_AXES_OPENCV, CameraSpec, Category, DEPTH_ENCODING, DEPTH_UNIT, DepthSpec,
     FORMAT_NAME, FORMAT_VERSION, HandSpec, Provenance, ROTATION_TOLERANCE, Split, UNITS, UpAxis,
-    parse_json, read_json, write_file_atomic, write_json_atomic,
+    parse_json, read_json, remove_abandoned_temporaries, write_file_atomic, write_json_atomic,
 };
 pub use npy::{BundleElement, read_npy_checked, shape_string, write_npy_file};
 pub use writer::{BundleWriter, depth_m_to_png_mm};

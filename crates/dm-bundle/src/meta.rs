@@ -509,6 +509,48 @@ pub(crate) fn unique_sibling(path: &Path, tag: &str) -> PathBuf {
     path.with_file_name(name)
 }
 
+/// Removes the entries of `dir` named `PREFIX<pid>` or `PREFIX<pid>-<n>`
+/// whose process is gone: temporary outputs of killed runs (a live
+/// process's are kept; where `/proc` is missing nothing is removed).
+pub fn remove_abandoned_temporaries(dir: &Path, prefix: &str) -> Result<()> {
+    let proc = Path::new("/proc");
+    if !proc.join("self").exists() {
+        return Ok(());
+    }
+    let Ok(entries) = fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix(prefix) else {
+            continue;
+        };
+        let pid = rest.split('-').next().unwrap_or_default();
+        if pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) || proc.join(pid).exists() {
+            continue;
+        }
+        let path = entry.path();
+        let removed = if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            fs::remove_dir_all(&path)
+        } else {
+            fs::remove_file(&path)
+        };
+        match removed {
+            Ok(()) => {}
+            // Another run removed it first.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(BundleError::io(
+                    &path,
+                    "removing a killed run's temporary output",
+                    &e,
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Writes `value` as pretty JSON to a temporary sibling, syncs it, then renames it
 /// over `path`, so readers never observe a partially written file.
 pub fn write_json_atomic<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<()> {
@@ -538,4 +580,29 @@ pub fn write_file_atomic(
         let _ = fs::remove_file(&temp);
         BundleError::io(path, "renaming temporary file into place", &e)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_dead_processes_temporaries_are_removed() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        // Above Linux's largest pid: no such process can be alive.
+        let dead = dir.path().join("bundle.tmp-999999999-3");
+        let live = dir.path().join(format!("bundle.tmp-{}-0", std::process::id()));
+        let other = dir.path().join("bundle.tmpfile");
+        let kept_file = dir.path().join("model.json.tmp-999999999-1");
+        for d in [&dead, &live, &other] {
+            fs::create_dir_all(d.join("tracks")).expect("dir");
+        }
+        fs::write(&kept_file, b"{").expect("file");
+        remove_abandoned_temporaries(dir.path(), "bundle.tmp-").expect("sweep");
+        assert!(!dead.exists(), "a killed run's copy is removed");
+        assert!(live.exists(), "a live process's copy is kept");
+        assert!(other.exists() && kept_file.exists(), "other names are kept");
+        remove_abandoned_temporaries(dir.path(), "model.json.tmp-").expect("sweep");
+        assert!(!kept_file.exists(), "files too");
+    }
 }

@@ -12,7 +12,7 @@ use crate::bundle::{
     SURFACE_COLORS_FILE, SURFACE_POINTS_FILE, TRACKS_DIR, Tracks, VIEWS_DIR, image_path,
 };
 use crate::error::{BundleError, Result};
-use crate::meta::{BundleMeta, unique_sibling, write_json_atomic};
+use crate::meta::{BundleMeta, remove_abandoned_temporaries, unique_sibling, write_json_atomic};
 use crate::npy::write_npy_file;
 
 /// Converts a depth in metres to the stored PNG value: millimetres rounded to
@@ -66,6 +66,15 @@ impl BundleWriter {
         if let Some(parent) = final_dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             fs::create_dir_all(parent)
                 .map_err(|e| BundleError::io(parent, "creating directory", &e))?;
+        }
+        // Earlier runs killed while writing this bundle left their copies.
+        if let (Some(parent), Some(name)) = (final_dir.parent(), final_dir.file_name()) {
+            let parent = if parent.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                parent
+            };
+            remove_abandoned_temporaries(parent, &format!("{}.tmp-", name.to_string_lossy()))?;
         }
         let temp_dir = unique_sibling(final_dir, "tmp");
         // The name embeds our pid, so an existing one is a leftover of a dead process.

@@ -5,6 +5,7 @@
 //! `Err` is the expected answer to bad input, a panic or an input slower
 //! than [`SLOW_INPUT_SECONDS`] is a finding, saved for a regression test.
 
+pub mod kill;
 pub mod mutate;
 pub mod targets;
 

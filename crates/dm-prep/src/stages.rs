@@ -422,6 +422,8 @@ impl Prep {
             return Ok(outcomes);
         }
         let final_dir = self.stage_dir(stage);
+        // Killed runs' copies of this stage's output.
+        dm_bundle::remove_abandoned_temporaries(&self.work, &format!(".{}.tmp-", stage.name()))?;
         let temp = self
             .work
             .join(format!(".{}.tmp-{}", stage.name(), std::process::id()));

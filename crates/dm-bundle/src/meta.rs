@@ -591,7 +591,9 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         // Above Linux's largest pid: no such process can be alive.
         let dead = dir.path().join("bundle.tmp-999999999-3");
-        let live = dir.path().join(format!("bundle.tmp-{}-0", std::process::id()));
+        let live = dir
+            .path()
+            .join(format!("bundle.tmp-{}-0", std::process::id()));
         let other = dir.path().join("bundle.tmpfile");
         let kept_file = dir.path().join("model.json.tmp-999999999-1");
         for d in [&dead, &live, &other] {

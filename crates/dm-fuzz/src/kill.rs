@@ -20,6 +20,9 @@ const WATCH_INTERVAL: Duration = Duration::from_millis(3);
 /// Kill moments are drawn in this part of the uninterrupted run's time.
 const KILL_WINDOW: [f64; 2] = [0.02, 0.98];
 
+/// Puts a run's inputs into its output directory before it starts.
+pub type Prepare<'a> = &'a dyn Fn(&Path) -> Result<(), String>;
+
 /// A kill-and-resume check of one tool.
 pub struct KillCheck<'a> {
     /// The tool writing its outputs under the given directory; `true`
@@ -36,7 +39,7 @@ pub struct KillCheck<'a> {
     /// Puts a run's inputs into its directory before the first start (a
     /// tool that writes beside its input, as dm-appearance into the
     /// model directory).
-    pub prepare: Option<&'a dyn Fn(&Path) -> Result<(), String>>,
+    pub prepare: Option<Prepare<'a>>,
     /// JSON keys, besides wall-clock ones, that say how the run went rather
     /// than what it computed (e.g. how many results came from a cache).
     pub run_record_keys: &'a [&'a str],
@@ -520,7 +523,7 @@ mod tests {
         let mut npy = b"\x93NUMPY\x01\x00".to_vec();
         let header = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }";
         let mut header = header.to_string();
-        while (10 + header.len() + 1) % 64 != 0 {
+        while !(10 + header.len() + 1).is_multiple_of(64) {
             header.push(' ');
         }
         header.push('\n');

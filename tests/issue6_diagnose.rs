@@ -4,11 +4,11 @@
 //! scene (draw 1500) must give `none`. Each scene costs one short fit and
 //! one diagnosis (about two minutes on 2 cores), so CI runs one of each.
 //! The naming rate on fresh draws comes from the evaluation command,
-//! `cargo run --release -p dm-diagnose --example diagnose_eval`
+//! `cargo run --release -p dm-studies --example diagnose_eval`
 //! (docs/diagnose.md).
 
 use dm_diagnose::DiagnoseOptions;
-use dm_diagnose::evaluation::{SceneVariant, quick_fit_options, run_scene};
+use dm_studies::diagnosis_evaluation::{SceneVariant, quick_fit_options, run_scene};
 
 /// The known scenes: a draw whose hidden effect the diagnosis names, and a
 /// null draw (seeds of the development set, not the reported fresh ones).

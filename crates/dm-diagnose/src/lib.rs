@@ -19,8 +19,6 @@
 
 pub mod analysis;
 pub mod candidates;
-pub mod evaluation;
-pub mod oracle;
 mod plots;
 mod report;
 pub mod signatures;
@@ -232,6 +230,25 @@ fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
     score_model(model, bundle)
         .map(|(s, _)| s)
         .unwrap_or_else(|_| Scored::failed())
+}
+
+/// The track error of a model's open-loop rollout on a bundle: the means
+/// over the bundle's train and test splits, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SplitTrackError {
+    pub train: f64,
+    pub test: f64,
+}
+
+/// `model` rolled out on `bundle` and scored as the diagnosis scores a
+/// candidate: both splits' mean track error, infinite where the rollout
+/// diverges or the model cannot be built.
+pub fn split_track_error(model: &WorldModel, bundle: &Bundle) -> SplitTrackError {
+    let scored = score_trial(model, bundle);
+    SplitTrackError {
+        train: scored.track_train,
+        test: scored.track_test,
+    }
 }
 
 impl Scored {

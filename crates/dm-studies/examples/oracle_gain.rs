@@ -1,8 +1,8 @@
 //! How much the right candidate can show in each evaluation scene:
 //! the scene's base fit repeated with the hidden effect's true
-//! term in place from the start (`dm_diagnose::oracle`).
+//! term in place from the start (`dm_studies::oracle`).
 //!
-//!     cargo run --release -p dm-diagnose --example oracle_gain -- OUT_DIR SEED [SEED ...] [OPTIONS]
+//!     cargo run --release -p dm-studies --example oracle_gain -- OUT_DIR SEED [SEED ...] [OPTIONS]
 //!
 //! For each hidden-effect draw SEED, OUT_DIR/hiddenSEED is the directory
 //! `diagnose_eval` uses: its scene and base fit are reused (or made, with
@@ -15,11 +15,11 @@
 //! fit stages.
 
 use clap::Parser;
-use dm_diagnose::evaluation::{
+use dm_studies::diagnosis_evaluation::{
     SceneVariant, evaluation_fit_options, prepare_scene, quick_fit_options, scene_config,
     scene_config_with_effect,
 };
-use dm_diagnose::oracle::oracle_fit;
+use dm_studies::oracle::oracle_fit;
 use dm_synth::EffectSpec;
 use std::io::Write;
 use std::path::PathBuf;
@@ -44,7 +44,7 @@ struct Args {
     // The scene or fit settings changed (the evaluation's by default).
     #[command(flatten)]
     variant: SceneVariant,
-    /// The 3 + 1 steps of sessions one to fourteen.
+    /// Fit with `quick_fit_options`: 3 + 1 material steps.
     #[arg(long)]
     quick_fit: bool,
 }

@@ -5,7 +5,7 @@
 //! (`dm_fit::identifiability::gauss_newton_step`): the least-squares fit of
 //! the tracks, each track's constant offset free.
 //!
-//!     cargo run --release -p dm-fit --example global_refit -- \
+//!     cargo run --release -p dm-studies --example global_refit -- \
 //!         SCENE SCENE.truth.json [--start truth|untrained|MODEL_DIR] [--grasp-radius R] [--kp K] [--kd K] [--parameters ln_E,nu,ln_kp,ln_kd] [--steps N] [--out DIR]
 //!
 //! `truth` starts from the true material with the truth's grip; a grasp
@@ -18,9 +18,8 @@ use dm_fit::identifiability::{
 };
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
+use dm_studies::fit_support;
 use std::path::PathBuf;
-
-mod support;
 
 #[derive(Parser)]
 struct Args {
@@ -30,9 +29,9 @@ struct Args {
     #[arg(long, default_value = "truth")]
     start: String,
     #[command(flatten)]
-    grip: support::GripOverride,
+    grip: fit_support::GripOverride,
     #[command(flatten)]
-    scene: support::SceneOverride,
+    scene: fit_support::SceneOverride,
     /// Parameters to refit (ln_E, nu, ln_kp, ln_kd); the rest stay.
     #[arg(long, value_delimiter = ',', default_value = "ln_E,nu,ln_kp,ln_kd")]
     parameters: Vec<String>,
@@ -48,12 +47,12 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (mut bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let (mut bundle, truth) = fit_support::open_scene(&args.bundle, &args.truth)?;
     args.scene.apply(&mut bundle, &truth)?;
     let untrained = WorldModel::from_bundle(&bundle, &args.fit.model)?;
     let mut model = match args.start.as_str() {
         "truth" => {
-            let mut m = support::with_true_material(&untrained, &truth);
+            let mut m = fit_support::with_true_material(&untrained, &truth);
             m.actuator = dm_synth::truth::TRUTH_GRIP;
             m
         }

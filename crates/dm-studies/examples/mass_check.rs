@@ -3,15 +3,14 @@
 //! shifts the recovered E by about the same factor. Compares the
 //! bundle model's particle count × particle volume with the truth's.
 //!
-//!     cargo run --release -p dm-fit --example mass_check -- SCENE SCENE.truth.json
+//!     cargo run --release -p dm-studies --example mass_check -- SCENE SCENE.truth.json
 
 use anyhow::Result;
 use clap::Parser;
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
+use dm_studies::fit_support;
 use std::path::PathBuf;
-
-mod support;
 
 #[derive(Parser)]
 struct Args {
@@ -23,7 +22,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let (bundle, truth) = fit_support::open_scene(&args.bundle, &args.truth)?;
     let model = WorldModel::from_bundle(&bundle, &args.fit.model)?;
     let cloud = dm_synth::shapes::ParticleCloud::fill(
         truth.config.preset,

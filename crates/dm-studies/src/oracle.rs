@@ -7,9 +7,9 @@
 //! however good the search: the fitted material and gains have absorbed it,
 //! or it is small beside the model's other error.
 
-use crate::candidates::{Candidate, apply, with_learnt_parameters};
-use crate::{DiagnoseError, score_trial};
 use dm_bundle::{Bundle, write_json_atomic};
+use dm_diagnose::candidates::{Candidate, apply, with_learnt_parameters};
+use dm_diagnose::{DiagnoseError, split_track_error};
 use dm_model::WorldModel;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -174,21 +174,21 @@ pub fn oracle_fit(
     let start = apply(&start, candidate, &truth_parameters);
     dm_fit::run::run_fit_from(&bundle, &options, start, out, &mut |_| {})?;
     let fitted: WorldModel = dm_bundle::read_json(&out.join("model.json"))?;
-    let before = score_trial(&base, &bundle);
-    let after = score_trial(&fitted, &bundle);
+    let before = split_track_error(&base, &bundle);
+    let after = split_track_error(&fitted, &bundle);
     let relative = |b: f64, a: f64| if a.is_finite() { (b - a) / b } else { -1.0 };
-    let train_reduction = relative(before.track_train, after.track_train);
-    let held_out_reduction = relative(before.track_test, after.track_test);
+    let train_reduction = relative(before.train, after.train);
+    let held_out_reduction = relative(before.test, after.test);
     let result = OracleResult {
         effect: truth["effect"]["name"].as_str().unwrap_or_default().into(),
         candidate: candidate.name().into(),
         effect_frozen: options.freeze_effects,
         learnt_parameters: with_learnt_parameters(candidate, &truth_parameters, &fitted),
         truth_parameters,
-        base_track_train: before.track_train,
-        base_track_test: before.track_test,
-        oracle_track_train: after.track_train,
-        oracle_track_test: after.track_test,
+        base_track_train: before.train,
+        base_track_test: before.test,
+        oracle_track_train: after.train,
+        oracle_track_test: after.test,
         train_reduction,
         held_out_reduction,
         score: train_reduction.min(held_out_reduction),

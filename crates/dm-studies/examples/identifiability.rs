@@ -5,7 +5,7 @@
 //! once with every parameter estimated, as dm-fit estimates them, and
 //! once with the gains known.
 //!
-//!     cargo run --release -p dm-fit --example identifiability -- \
+//!     cargo run --release -p dm-studies --example identifiability -- \
 //!         SCENE SCENE.truth.json [--at-model MODEL_DIR] [--json OUT.json]
 //!
 //! Noise defaults to what `dm-synth` adds to its tracks (1.5 mm per axis
@@ -16,10 +16,9 @@ use clap::Parser;
 use dm_fit::identifiability::{TrackNoise, identifiability_at};
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
+use dm_studies::fit_support;
 use dm_synth::sensor::SensorNoise;
 use std::path::PathBuf;
-
-mod support;
 
 #[derive(Parser)]
 struct Args {
@@ -47,13 +46,13 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (bundle, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let (bundle, truth) = fit_support::open_scene(&args.bundle, &args.truth)?;
     let model = match &args.at_model {
         Some(dir) => dm_bundle::read_json::<WorldModel>(&dir.join("model.json"))
             .with_context(|| format!("reading the model in {}", dir.display()))?,
         None => {
             let untrained = WorldModel::from_bundle(&bundle, &args.fit.model)?;
-            let mut model = support::with_true_material(&untrained, &truth);
+            let mut model = fit_support::with_true_material(&untrained, &truth);
             model.actuator = dm_synth::truth::TRUTH_GRIP;
             model
         }

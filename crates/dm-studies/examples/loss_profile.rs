@@ -4,7 +4,7 @@
 //! of the training loss (track, shape, length) and their weighted total
 //! over the training frames.
 //!
-//!     cargo run --release -p dm-fit --example loss_profile -- \
+//!     cargo run --release -p dm-studies --example loss_profile -- \
 //!         SCENE SCENE.truth.json [--kp K --kd K --grasp-radius R] [--factors 0.6,0.75,1,1.25]
 //!
 //! Without gains the truth's grip is used.
@@ -17,18 +17,17 @@ use dm_fit::loss::{
 };
 use dm_fit::run::FitOptions;
 use dm_model::WorldModel;
+use dm_studies::fit_support;
 use std::path::PathBuf;
-
-mod support;
 
 #[derive(Parser)]
 struct Args {
     bundle: PathBuf,
     truth: PathBuf,
     #[command(flatten)]
-    grip: support::GripOverride,
+    grip: fit_support::GripOverride,
     #[command(flatten)]
-    scene: support::SceneOverride,
+    scene: fit_support::SceneOverride,
     /// Score the losses on a seeded random subset of this many of the
     /// model's particles (the rollout keeps them all): separates what a
     /// sparser particle set does to the dynamics from what it does to the
@@ -49,7 +48,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let (recorded, truth) = support::open_scene(&args.bundle, &args.truth)?;
+    let (recorded, truth) = fit_support::open_scene(&args.bundle, &args.truth)?;
     let seeds: Vec<Option<u64>> = if args.subset_seeds.is_empty() {
         vec![args.scene.subset_seed]
     } else {
@@ -57,7 +56,7 @@ fn main() -> Result<()> {
     };
     for seed in seeds {
         let mut bundle = recorded.clone();
-        let scene = support::SceneOverride {
+        let scene = fit_support::SceneOverride {
             subset_seed: seed,
             ..args.scene
         };
@@ -78,7 +77,7 @@ fn profile(args: &Args, bundle: &dm_bundle::Bundle, truth: &dm_synth::TruthFile)
     let frames = bundle.meta.split.train[1];
     // Surface-first order is kept, so the subset's surface comes first too.
     let scored: Vec<usize> = match args.loss_keep {
-        Some(keep) => support::seeded_subset(base.particles.len(), keep, truth.config.seed),
+        Some(keep) => fit_support::seeded_subset(base.particles.len(), keep, truth.config.seed),
         None => (0..base.particles.len()).collect(),
     };
     let scored_surface = scored.iter().filter(|&&i| i < base.surface_count).count();
@@ -118,7 +117,7 @@ fn profile(args: &Args, bundle: &dm_bundle::Bundle, truth: &dm_synth::TruthFile)
     );
     println!("|---|---|---|---|---|---|---|");
     for &factor in &args.factors {
-        let model = support::with_material(&base, truth, factor, 0.0);
+        let model = fit_support::with_material(&base, truth, factor, 0.0);
         let rollout = model.rollout(bundle, frames, &mut |_| {})?;
         let mut sums = [0.0; 4];
         let mut embedded_sum = 0.0;

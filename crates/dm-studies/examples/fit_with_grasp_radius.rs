@@ -1,7 +1,7 @@
 //! dm-fit's stages from the bundle's model with another actuator grasp
 //! radius (m): does the grip's width move the fitted material?
 //!
-//!     cargo run --release -p dm-fit --example fit_with_grasp_radius -- \
+//!     cargo run --release -p dm-studies --example fit_with_grasp_radius -- \
 //!         SCENE --grasp-radius 0.014 --out DIR [dm-fit's flags]
 
 use anyhow::{Context, Result};

@@ -1,6 +1,6 @@
 //! The full hidden-effect evaluation of the diagnosis (docs/diagnose.md):
 //!
-//!     cargo run --release -p dm-diagnose --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit] [VARIANT OPTIONS]
+//!     cargo run --release -p dm-studies --example diagnose_eval -- OUT_DIR [HIDDEN] [NULL] [FIRST_SEED] [SHARD/SHARDS] [--fit-candidates] [--quick-fit] [VARIANT OPTIONS]
 //!
 //! synthesises HIDDEN scenes (default 16) with a seeded random effect,
 //! preset and magnitude and NULL scenes (default 4) without, fits and
@@ -10,15 +10,15 @@
 //! of results.jsonl. With `SHARD/SHARDS` (e.g. `0/2`) the run takes every
 //! SHARDS-th scene from the SHARD-th, so several processes can share one
 //! OUT_DIR. Scenes are fitted with `evaluation_fit_options` (6 + 6
-//! material steps), or with `--quick-fit` the 3 + 1 steps of sessions
-//! one to fourteen (a scene's model fitted with the other options is
+//! material steps), or with `--quick-fit` the 3 + 1 steps of
+//! `quick_fit_options` (a scene's model fitted with the other options is
 //! fitted again). The variant options (`--help`; `oracle_gain` takes the
 //! same) change one scene or fit setting, the scene directories named
 //! with its suffix (e.g. `hidden1023-p3000`).
 
 use clap::Parser;
 use dm_diagnose::DiagnoseOptions;
-use dm_diagnose::evaluation::{
+use dm_studies::diagnosis_evaluation::{
     SceneResult, SceneVariant, confusion_markdown, evaluation_fit_options, quick_fit_options,
     run_scene,
 };
@@ -46,7 +46,7 @@ struct Args {
     /// Score the candidates by fits from the start.
     #[arg(long)]
     fit_candidates: bool,
-    /// The 3 + 1 steps of sessions one to fourteen.
+    /// Fit with `quick_fit_options`: 3 + 1 material steps.
     #[arg(long)]
     quick_fit: bool,
     // A scene or fit setting changed (scene directories get its suffix).

@@ -3,7 +3,7 @@
 //! named causes against the hidden ones. Shared by the integration test
 //! and `examples/diagnose_eval.rs`.
 
-use crate::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
+use dm_diagnose::{DiagnoseError, DiagnoseOptions, Diagnosis, diagnose};
 use dm_fit::run::{FitOptions, run_fit};
 use dm_model::{ModelOptions, ResidualKind};
 use dm_synth::{EffectSpec, Engine, Preset, SynthConfig, draw_hidden_effect_among, generate};

@@ -2,7 +2,7 @@
 //! the evidence behind the "detectable range" of
 //! `dm_synth::EffectName::test_range`.
 //!
-//!     cargo run --release -p dm-diagnose --example effect_visibility -- OUT_DIR [SEED] [EFFECTS] [PRESETS]
+//!     cargo run --release -p dm-studies --example effect_visibility -- OUT_DIR [SEED] [EFFECTS] [PRESETS]
 //!
 //! EFFECTS (optional) is a comma-separated list of `name:magnitude`, e.g.
 //! `viscous_damping:250,viscous_damping:1000`, run instead of the library;

@@ -2,7 +2,7 @@
 //! untrained model (its first-frame particles are what dm-fit keeps), the
 //! default fit holding out the last camera, PSNR per camera and the time.
 //!
-//!     cargo run --release -p dm-appearance --example appearance_table -- [--iters N] BUNDLE...
+//!     cargo run --release -p dm-studies --example appearance_table -- [--iters N] BUNDLE...
 //!
 //! With `--out DIR` each scene's model directory (model.json and the
 //! splats) is written to DIR/<bundle name>, ready for dm-render.

@@ -1,8 +1,6 @@
-// Each example uses a part of these helpers.
-#![allow(dead_code)]
-
-//! What the issue-3 analysis examples share: the bundle's model set to the
-//! synthetic scene's true homogeneous material.
+//! What the material-recovery examples share: the bundle's model set to
+//! the synthetic scene's true homogeneous material, the bundle's hands or
+//! first-frame particles replaced by the truth's.
 
 use dm_model::WorldModel;
 use dm_synth::TruthFile;

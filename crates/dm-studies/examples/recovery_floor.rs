@@ -6,7 +6,7 @@
 //! benchmark protocol, sensor noise included) and against the true surface
 //! (every truth surface particle, noise-free).
 //!
-//!     cargo run --release -p dm-fit --example recovery_floor -- \
+//!     cargo run --release -p dm-studies --example recovery_floor -- \
 //!         SCENE SCENE.truth.json [--fitted MODEL_DIR ...] [--gain-search DIR]
 //!
 //! `--gain-search DIR` also runs dm-fit's CMA-ES gain search (its flags
@@ -20,11 +20,10 @@ use dm_fit::run::{FitOptions, run_fit_from};
 use dm_model::WorldModel;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_mpm::neighbors::PointIndex;
+use dm_studies::fit_support;
 use dm_synth::TruthFile;
 use ndarray::{Array2, Array3};
 use std::path::PathBuf;
-
-mod support;
 
 #[derive(Parser)]
 struct Args {
@@ -133,7 +132,7 @@ fn main() -> Result<()> {
     };
     add("untrained".into(), &untrained)?;
 
-    let true_material = support::with_true_material(&untrained, &truth_file);
+    let true_material = fit_support::with_true_material(&untrained, &truth_file);
     add("true E, ν; default gains".into(), &true_material)?;
 
     // The truth's grip, on the model's hand tracks.
@@ -143,7 +142,7 @@ fn main() -> Result<()> {
     // How sharply the data pins the material: the bar's edges (E ±25 %,
     // ν ±0.05) with everything else true.
     for (e_factor, nu_shift) in [(0.75, 0.0), (1.25, 0.0), (1.0, -0.05), (1.0, 0.05)] {
-        let shifted = support::with_material(&true_grip, &truth_file, e_factor, nu_shift);
+        let shifted = fit_support::with_material(&true_grip, &truth_file, e_factor, nu_shift);
         add(
             format!("E ×{e_factor}, ν {nu_shift:+}; truth's grip"),
             &shifted,

@@ -8,7 +8,6 @@ pub mod evaluate;
 pub mod image_metrics;
 pub mod lpips;
 pub mod report;
-pub mod suite;
 
 pub use evaluate::{
     EvalOptions, Evaluation, evaluate, render_prediction, render_splat_prediction, renderer_name,

@@ -40,15 +40,18 @@ struct MetricsFile<'a> {
 }
 
 /// One metric's column: JSON key, heading, digits shown, better direction.
-pub(crate) struct Column {
-    pub(crate) key: &'static str,
-    pub(crate) heading: &'static str,
-    pub(crate) digits: usize,
+#[derive(Debug)]
+pub struct Column {
+    pub key: &'static str,
+    pub heading: &'static str,
+    pub digits: usize,
     per_frame: fn(&FrameMetrics) -> Option<f64>,
-    pub(crate) split: fn(&SplitMetrics) -> Option<f64>,
+    pub split: fn(&SplitMetrics) -> Option<f64>,
 }
 
-pub(crate) const COLUMNS: [Column; 6] = [
+/// The metrics' columns, in the order of every table (metrics.md and the
+/// benchmark suite's tables).
+pub const COLUMNS: [Column; 6] = [
     Column {
         key: "iou",
         heading: "IoU ↑",
@@ -93,7 +96,9 @@ pub(crate) const COLUMNS: [Column; 6] = [
     },
 ];
 
-pub(crate) fn cell(value: Option<f64>, digits: usize) -> String {
+/// A table cell: the value with `digits` decimals, `∞` for +∞, `–` for
+/// NaN, −∞ or no value.
+pub fn cell(value: Option<f64>, digits: usize) -> String {
     match value {
         Some(v) if v.is_finite() => format!("{v:.digits$}"),
         Some(v) if v == f64::INFINITY => "∞".into(),

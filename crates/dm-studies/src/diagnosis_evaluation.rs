@@ -284,7 +284,7 @@ pub fn prepare_scene(
     let model = dir.join("model");
     // A scene made by another version of the truth simulation, or with
     // another configuration, is made again, and its model fitted again
-    // (as dm-eval's suite cache does).
+    // (as dm-suite's cache does).
     let current = dm_bundle::read_json::<dm_synth::TruthFile>(&truth)
         .is_ok_and(|t| t.is_current() && t.config == *config);
     if !scene.join("bundle.json").is_file() || !current {

@@ -9,9 +9,9 @@ use clap::Parser;
 use dm_bundle::Bundle;
 use dm_eval::lpips::{Lpips, MAKE_TARGET};
 use dm_eval::report::{RunInfo, write_report};
-use dm_eval::suite::{Suite, SuiteProgress, run_suite, update_results_markdown};
 use dm_eval::{EvalOptions, evaluate};
 use dm_model::WorldModel;
+use dm_suite::{Suite, SuiteProgress, run_suite, update_results_markdown};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -139,7 +139,7 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
         )
     })?;
     bar.finish_and_clear();
-    let tables = dm_eval::suite::tables_markdown(&report);
+    let tables = dm_suite::tables_markdown(&report);
     print!("{tables}");
     if let Some(results_md) = &args.results_md {
         update_results_markdown(results_md, &suite.file.results_heading, &tables)
@@ -148,15 +148,15 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
     let diverged = report
         .runs
         .iter()
-        .filter(|r| r.status == dm_eval::suite::RunStatus::Diverged)
+        .filter(|r| r.status == dm_suite::RunStatus::Diverged)
         .count();
     println!(
         "\ndm-eval: {} runs ({} cached, {diverged} diverged) in {:.1} s; wrote {} and {}",
         report.runs.len(),
         report.cached_runs,
         report.seconds,
-        args.out.join(dm_eval::suite::SUITE_JSON).display(),
-        args.out.join(dm_eval::suite::TABLES_MARKDOWN).display()
+        args.out.join(dm_suite::SUITE_JSON).display(),
+        args.out.join(dm_suite::TABLES_MARKDOWN).display()
     );
     Ok(())
 }

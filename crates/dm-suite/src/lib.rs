@@ -5,11 +5,11 @@
 //! such, and the overall and per-category tables are written in the
 //! paper's layout (method.md §9).
 
-use crate::lpips::Lpips;
-use crate::report::{COLUMNS, cell};
-use crate::{EvalError, EvalOptions, SplitMetrics, evaluate};
 use clap::Parser;
 use dm_bundle::{Bundle, BundleError, Category, write_file_atomic, write_json_atomic};
+use dm_eval::lpips::Lpips;
+use dm_eval::report::{COLUMNS, cell};
+use dm_eval::{EvalError, EvalOptions, SplitMetrics, evaluate};
 use dm_fit::material_fit::FitError;
 use dm_fit::run::{FitOptions, FitOutcome, run_fit};
 use dm_model::ModelError;

@@ -10,6 +10,14 @@
 //! Lucas–Kanade solve from the query's frame-0 window straight to frame t,
 //! whose answer (when it passes its own forward–backward check and stays
 //! near the seed) replaces the seed, so errors no longer add up.
+//!
+//! Once the object has turned or moved under other light, its frame-0
+//! windows no longer match (on a pushed toy a third of one camera's tracks
+//! still anchored after the push, a sixth of another's), and frame-to-frame
+//! flow took over again. So each track also keeps a keyframe — the last
+//! frame where it anchored to frame 0, renewed every `keyframe_every`
+//! frames — and a track that fails to anchor to frame 0 anchors to its
+//! keyframe instead.
 
 use image::{GrayImage, RgbImage};
 use opencv::core::{Mat, Point2f, Size, TermCriteria, Vector};
@@ -37,10 +45,19 @@ pub struct TrackOptions {
     /// frame-to-frame one. 0 disables re-anchoring.
     #[serde(default = "default_anchor_px")]
     pub anchor_px: f32,
+    /// A track that cannot anchor to frame 0 anchors to its keyframe,
+    /// renewed after this many frames (see the module note). 0: frame 0
+    /// only.
+    #[serde(default = "default_keyframe_every")]
+    pub keyframe_every: usize,
 }
 
 fn default_anchor_px() -> f32 {
     3.0
+}
+
+fn default_keyframe_every() -> usize {
+    8
 }
 
 impl Default for TrackOptions {
@@ -53,6 +70,7 @@ impl Default for TrackOptions {
             min_texture: 1e-4,
             edge_margin_px: 3,
             anchor_px: default_anchor_px(),
+            keyframe_every: default_keyframe_every(),
         }
     }
 }
@@ -259,30 +277,58 @@ pub fn track_points(
     // OpenCV's LK works in pixel-corner coordinates (pixel centre = integer).
     let to_cv = |p: [f32; 2]| Point2f::new(p[0] - 0.5, p[1] - 0.5);
     let origin: Vector<Point2f> = queries.iter().map(|&p| to_cv(p)).collect();
+    // Each track's keyframe: frame and position (pixel-corner coordinates).
+    let mut keyframe: Vec<(usize, Point2f)> = origin.iter().map(|p| (0, p)).collect();
     for t in 1..frames.len() {
         let current: Vector<Point2f> = tracks.points[t - 1].iter().map(|&p| to_cv(p)).collect();
         let (forward, status_f) = lk(&frames[t - 1], &frames[t], &current, options)?;
         let (backward, status_b) = lk(&frames[t], &frames[t - 1], &forward, options)?;
-        let anchored = if options.anchor_px > 0.0 && t > 1 {
-            Some(anchor_to_first_frame(
-                &frames[0], &frames[t], &origin, &forward, options,
-            )?)
+        let anchoring = options.anchor_px > 0.0 && t > 1;
+        let to_first = if anchoring {
+            anchor_to_reference(&frames[0], &frames[t], &origin, &forward, options)?
         } else {
-            None
+            vec![None; n]
         };
+        let mut anchored = to_first.clone();
+        if anchoring && options.keyframe_every > 0 {
+            // Tracks that missed frame 0, grouped by keyframe (one solve each);
+            // a keyframe of the previous frame would repeat the flow above.
+            let mut by_keyframe: std::collections::BTreeMap<usize, Vec<usize>> =
+                std::collections::BTreeMap::new();
+            for k in 0..n {
+                let frame = keyframe[k].0;
+                if tracks.alive[t - 1][k] && to_first[k].is_none() && frame > 0 && frame + 1 < t {
+                    by_keyframe.entry(frame).or_default().push(k);
+                }
+            }
+            for (frame, members) in by_keyframe {
+                let from: Vector<Point2f> = members.iter().map(|&k| keyframe[k].1).collect();
+                let seed = members
+                    .iter()
+                    .map(|&k| forward.get(k))
+                    .collect::<opencv::Result<Vector<Point2f>>>()?;
+                let found = anchor_to_reference(&frames[frame], &frames[t], &from, &seed, options)?;
+                for (k, a) in members.into_iter().zip(found) {
+                    anchored[k] = a;
+                }
+            }
+        }
         tracks.push_frame(|k| {
             let f = forward.get(k)?;
             let fb = distance(backward.get(k)?, current.get(k)?);
-            let p = match anchored.as_ref().and_then(|a| a[k]) {
-                Some(a) => a,
-                None => [f.x + 0.5, f.y + 0.5],
-            };
+            let p = anchored[k].unwrap_or([f.x + 0.5, f.y + 0.5]);
             let ok = status_f.get(k)? == 1
                 && status_b.get(k)? == 1
                 && fb <= options.forward_backward_px
                 && masks.is_none_or(|masks| on_mask(&masks[t], p));
             Ok::<_, opencv::Error>(ok.then_some(p))
         })?;
+        for k in 0..n {
+            let renew = to_first[k].is_some() || t >= keyframe[k].0 + options.keyframe_every.max(1);
+            if tracks.alive[t][k] && renew {
+                keyframe[k] = (t, to_cv(tracks.points[t][k]));
+            }
+        }
     }
     Ok(tracks)
 }
@@ -297,11 +343,12 @@ pub fn on_mask(mask: &GrayImage, p: [f32; 2]) -> bool {
         && mask.get_pixel(x as u32, y as u32).0[0] > 0
 }
 
-/// The frame-0 windows of `origin` solved straight into `to`, starting from
-/// `seed` (the frame-to-frame answer): per point, the anchored position
-/// (pixel-centre coordinates) when it passes a forward–backward check back
-/// to frame 0 and lies within `anchor_px` of the seed.
-fn anchor_to_first_frame(
+/// The windows of `origin` in the reference frame `first` solved straight
+/// into `to`, starting from `seed` (the frame-to-frame answer): per point,
+/// the anchored position (pixel-centre coordinates) when it passes a
+/// forward–backward check back to the reference and lies within
+/// `anchor_px` of the seed.
+fn anchor_to_reference(
     first: &Mat,
     to: &Mat,
     origin: &Vector<Point2f>,

@@ -318,7 +318,7 @@ fn refuse_overwrite(final_dir: &Path) -> BundleError {
     BundleError::new(
         final_dir,
         crate::error::IO_FIELD,
-        "already exists; refusing to overwrite (use BundleWriter::create_overwrite to replace it)",
+        "already exists; refusing to overwrite it (`--overwrite` replaces it in dm-prep, `overwrite=True` in Python, `BundleWriter::create_overwrite` in Rust)",
     )
 }
 

@@ -151,6 +151,39 @@ pub fn check_kill_and_resume(check: &KillCheck<'_>) -> Result<KillReport, String
     })
 }
 
+impl KillReport {
+    /// Kill points that interrupted the run (the others came after its end).
+    pub fn interrupted(&self) -> usize {
+        self.points.iter().filter(|p| !p.finished_first).count()
+    }
+
+    /// One line for a test's output: what was killed and checked.
+    pub fn summary(&self, tool: &str) -> String {
+        format!(
+            "{tool}: {:.1} s uninterrupted, {} of {} kills interrupted it, {} output files checked whole, {} temporaries left",
+            self.reference_s,
+            self.interrupted(),
+            self.points.len(),
+            self.files_checked,
+            self.leftover_temporaries.len()
+        )
+    }
+}
+
+/// [`check_kill_and_resume`] for a test: panics with the failure, prints the
+/// summary, and requires three in four kill points to have interrupted the
+/// run (kill moments are drawn within its uninterrupted length).
+pub fn assert_kill_and_resume(tool: &str, check: &KillCheck<'_>) -> KillReport {
+    let report = check_kill_and_resume(check).unwrap_or_else(|e| panic!("{tool}: {e}"));
+    println!("{}", report.summary(tool));
+    assert!(
+        report.interrupted() >= check.points * 3 / 4,
+        "{tool}: most kills came after the end: {:?}",
+        report.points
+    );
+    report
+}
+
 fn spawn(command: &Command) -> Result<Child, String> {
     let mut command = clone_command(command);
     command

@@ -94,7 +94,7 @@ pub fn check_kill_and_resume(check: &KillCheck<'_>) -> Result<KillReport, String
     prepare(&reference)?;
     let mut watch = Watch::default();
     let start = Instant::now();
-    let child = spawn(&(check.command)(&reference, false))?;
+    let child = spawn(&(check.command)(&reference, false), &reference)?;
     finish(child, &reference, &mut watch, "the uninterrupted run")?;
     let reference_s = start.elapsed().as_secs_f64();
     let expected = output_files(&reference)?;
@@ -107,7 +107,7 @@ pub fn check_kill_and_resume(check: &KillCheck<'_>) -> Result<KillReport, String
         let after_s = reference_s * rng.random_range(KILL_WINDOW[0]..KILL_WINDOW[1]);
         let context = format!("kill point {point} ({after_s:.2} s)");
         prepare(&out)?;
-        let mut child = spawn(&(check.command)(&out, false))?;
+        let mut child = spawn(&(check.command)(&out, false), &out)?;
         let started = Instant::now();
         let mut finished_first = false;
         while started.elapsed().as_secs_f64() < after_s {
@@ -131,7 +131,7 @@ pub fn check_kill_and_resume(check: &KillCheck<'_>) -> Result<KillReport, String
             files_at_kill,
             finished_first,
         });
-        let resumed = spawn(&(check.command)(&out, true))?;
+        let resumed = spawn(&(check.command)(&out, true), &out)?;
         finish(resumed, &out, &mut watch, &format!("{context}, resumed"))?;
         leftover_temporaries.extend(temporaries(&out)?);
         let got = output_files(&out)?;
@@ -184,15 +184,24 @@ pub fn assert_kill_and_resume(tool: &str, check: &KillCheck<'_>) -> KillReport {
     report
 }
 
-fn spawn(command: &Command) -> Result<Child, String> {
+/// Starts `command` with its stderr in a file beside `out` (a pipe nobody
+/// reads until the end could fill and stop a talkative tool).
+fn spawn(command: &Command, out: &Path) -> Result<Child, String> {
     let mut command = clone_command(command);
+    let log = stderr_log(out);
+    let stderr = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
     command
         .stdin(Stdio::null())
         .stdout(Stdio::null())
-        .stderr(Stdio::piped());
+        .stderr(stderr);
     command
         .spawn()
         .map_err(|e| format!("starting {:?}: {e}", command.get_program()))
+}
+
+/// Where a run into `out` writes its stderr: beside it, not among its outputs.
+fn stderr_log(out: &Path) -> PathBuf {
+    out.with_file_name("stderr.txt")
 }
 
 /// `Command` is not `Clone`; the check needs a fresh one per run.
@@ -216,12 +225,8 @@ fn finish(mut child: Child, out: &Path, watch: &mut Watch, what: &str) -> Result
     loop {
         watch.look(out).map_err(|e| format!("{what}: {e}"))?;
         if let Some(status) = child.try_wait().map_err(|e| e.to_string())? {
-            let mut stderr = String::new();
-            if let Some(mut pipe) = child.stderr.take() {
-                use std::io::Read;
-                pipe.read_to_string(&mut stderr).ok();
-            }
             if !status.success() {
+                let stderr = std::fs::read_to_string(stderr_log(out)).unwrap_or_default();
                 return Err(format!("{what} failed ({status}): {stderr}"));
             }
             return watch

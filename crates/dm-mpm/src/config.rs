@@ -42,6 +42,9 @@ pub struct Effects {
 /// method.md §2's substep, where its 0.999 per substep was set.
 pub const GRID_DAMPING_REFERENCE_DT: f64 = 8e-4;
 
+/// The finest grid a world may have (cells per axis).
+pub const MAX_GRID_RES: usize = 512;
+
 /// Everything the MPM world needs besides particles, material and actuators.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PhysicsConfig {
@@ -161,6 +164,8 @@ impl PhysicsConfig {
     }
 
     /// Checks the numbers a user could get wrong; names the field.
+    /// A model file's grid is bounded ([`MAX_GRID_RES`]) so that a damaged
+    /// or hostile one is refused instead of allocating without limit.
     pub fn validate(&self) -> Result<(), crate::SimError> {
         let bad = |field: &str, why: &str| {
             Err(crate::SimError::InvalidConfig {
@@ -170,6 +175,12 @@ impl PhysicsConfig {
         };
         if self.grid_res < 8 {
             return bad("grid_res", "must be at least 8");
+        }
+        if self.grid_res > MAX_GRID_RES {
+            return bad(
+                "grid_res",
+                "must be at most 512 (a 512³ grid already takes 2 GiB per copy)",
+            );
         }
         if !(self.domain_size.is_finite() && self.domain_size > 0.0) {
             return bad("domain_size", "must be positive");

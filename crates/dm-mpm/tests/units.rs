@@ -869,6 +869,8 @@ fn config_validation_names_the_bad_field() {
     type Edit = Box<dyn Fn(&mut PhysicsConfig)>;
     let cases: Vec<(&str, Edit)> = vec![
         ("grid_res", Box::new(|c| c.grid_res = 4)),
+        // A damaged model file must not allocate a grid without bound.
+        ("grid_res", Box::new(|c| c.grid_res = 100_000)),
         ("domain_size", Box::new(|c| c.domain_size = -1.0)),
         ("dt", Box::new(|c| c.dt = f64::NAN)),
         ("substeps_per_frame", Box::new(|c| c.substeps_per_frame = 0)),

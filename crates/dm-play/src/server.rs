@@ -590,15 +590,8 @@ async fn page_connection(mut socket: WebSocket, p: &Arc<Playground>) -> Result<(
                 }
                 // Bytes: every page shares the one encoded frame.
                 let frame = frames.borrow_and_update().clone();
-                match tokio::time::timeout(limits.send_timeout, socket.send(Message::Binary(frame))).await {
-                    Ok(Ok(())) => {}
-                    Ok(Err(_)) => return Ok(()),
-                    Err(_) => {
-                        return Err(format!(
-                            "did not read its frames for {:.1} s",
-                            limits.send_timeout.as_secs_f64()
-                        ));
-                    }
+                if !send_within(&mut socket, Message::Binary(frame), &limits, "frames").await? {
+                    return Ok(());
                 }
             }
             incoming = socket.recv() => {
@@ -644,18 +637,29 @@ async fn page_connection(mut socket: WebSocket, p: &Arc<Playground>) -> Result<(
                     continue;
                 }
                 let json = serde_json::to_string(&reply).unwrap_or_default();
-                match tokio::time::timeout(limits.send_timeout, socket.send(Message::Text(json.into()))).await {
-                    Ok(Ok(())) => {}
-                    Ok(Err(_)) => return Ok(()),
-                    Err(_) => {
-                        return Err(format!(
-                            "did not read its replies for {:.1} s",
-                            limits.send_timeout.as_secs_f64()
-                        ));
-                    }
+                if !send_within(&mut socket, Message::Text(json.into()), &limits, "replies").await? {
+                    return Ok(());
                 }
             }
         }
+    }
+}
+
+/// Sends `message` (one of the page's `what`): `Ok(true)` once delivered,
+/// `Ok(false)` when the page has gone, the disconnection reason when it
+/// did not read for `send_timeout`.
+async fn send_within(
+    socket: &mut WebSocket,
+    message: Message,
+    limits: &PageLimits,
+    what: &str,
+) -> Result<bool, String> {
+    match tokio::time::timeout(limits.send_timeout, socket.send(message)).await {
+        Ok(sent) => Ok(sent.is_ok()),
+        Err(_) => Err(format!(
+            "did not read its {what} for {:.1} s",
+            limits.send_timeout.as_secs_f64()
+        )),
     }
 }
 

@@ -130,6 +130,25 @@ pub fn frame_file_name(frame: usize) -> String {
     format!("{frame:05}.png")
 }
 
+/// Bounding box (min, max corners, pixel edges) of a mask's set pixels
+/// (above 127).
+pub fn mask_box(mask: &GrayImage) -> Option<([f64; 2], [f64; 2])> {
+    let mut bounds: Option<([u32; 2], [u32; 2])> = None;
+    for (x, y, pixel) in mask.enumerate_pixels() {
+        if pixel.0[0] > 127 {
+            let (min, max) = bounds.get_or_insert(([x, y], [x, y]));
+            *min = [min[0].min(x), min[1].min(y)];
+            *max = [max[0].max(x), max[1].max(y)];
+        }
+    }
+    bounds.map(|(min, max)| {
+        (
+            [f64::from(min[0]), f64::from(min[1])],
+            [f64::from(max[0] + 1), f64::from(max[1] + 1)],
+        )
+    })
+}
+
 /// A validated bundle: metadata and arrays in memory, images loaded on demand.
 #[derive(Debug, Clone)]
 pub struct Bundle {

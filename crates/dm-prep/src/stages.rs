@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use dm_bundle::{
     BundleError, BundleMeta, BundleWriter, Category, FirstFrameParticles, HandSpec, Provenance,
-    Tracks, read_json, read_npy_checked, write_json_atomic, write_npy_file,
+    Tracks, mask_box, read_json, read_npy_checked, write_json_atomic, write_npy_file,
 };
 use dm_view::Camera;
 use image::{GrayImage, RgbImage};
@@ -24,7 +24,7 @@ use crate::fill::{
 use crate::lift::{
     LiftOptions, Tracks3d, follow_hand_centroids, fuse_cameras, hold_last, lift_camera, mask_cloud,
 };
-use crate::models::segment::{self as sam2, Prompt, Segmenter, mask_box};
+use crate::models::segment::{self as sam2, Prompt, Segmenter};
 use crate::models::track::{self as cotracker, PointTracker};
 use crate::models::{Manifest, ModelError, default_models_dir};
 use crate::segment::{SegmentOptions, segment_frame};

@@ -10,6 +10,7 @@
 
 use std::path::Path;
 
+use dm_bundle::mask_box;
 use image::{GrayImage, Luma, RgbImage};
 use ndarray::{Array2, Array3, ArrayD, Axis, IxDyn, s};
 
@@ -234,24 +235,6 @@ fn upsample_mask(logits: &Array2<f32>, geometry: &InputGeometry) -> GrayImage {
             input[1] / per_low_res,
         );
         Luma([if logit > 0.0 { 255 } else { 0 }])
-    })
-}
-
-/// Bounding box (min, max corners, pixel edges) of a mask's set pixels.
-pub fn mask_box(mask: &GrayImage) -> Option<([f64; 2], [f64; 2])> {
-    let mut bounds: Option<([u32; 2], [u32; 2])> = None;
-    for (x, y, pixel) in mask.enumerate_pixels() {
-        if pixel.0[0] > 127 {
-            let (min, max) = bounds.get_or_insert(([x, y], [x, y]));
-            *min = [min[0].min(x), min[1].min(y)];
-            *max = [max[0].max(x), max[1].max(y)];
-        }
-    }
-    bounds.map(|(min, max)| {
-        (
-            [f64::from(min[0]), f64::from(min[1])],
-            [f64::from(max[0] + 1), f64::from(max[1] + 1)],
-        )
     })
 }
 

@@ -176,7 +176,7 @@ fn crop(
             frame.dimensions()
         )));
     }
-    let Some((min, max)) = crate::models::segment::mask_box(mask) else {
+    let Some((min, max)) = dm_bundle::mask_box(mask) else {
         return Err(PriorError::Input(
             "the first-frame object mask is empty".into(),
         ));

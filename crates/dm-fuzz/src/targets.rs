@@ -152,7 +152,8 @@ impl Harness {
         };
         match self.target {
             Target::Pickle => {
-                dm_prep::pickle::from_slice_with_limits(input, &dm_prep::Limits::default()).is_ok()
+                dm_numpy::pickle::from_slice_with_limits(input, &dm_numpy::Limits::default())
+                    .is_ok()
             }
             Target::Ply => {
                 let path = file("input.ply");

@@ -4,8 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use dm_prep::pickle::{Limits, Value, from_slice, from_slice_with_limits};
-use dm_prep::{ArrayData, Element, NdArray};
+use dm_numpy::pickle::{Limits, Value, from_slice, from_slice_with_limits};
+use dm_numpy::{ArrayData, Element, NdArray};
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures")

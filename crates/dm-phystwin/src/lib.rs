@@ -25,14 +25,13 @@ use dm_bundle::{
     Bundle, BundleError, BundleMeta, BundleWriter, CameraSpec, Category, FirstFrameParticles,
     HandSpec, Provenance, ROTATION_TOLERANCE, Split, Tracks, UpAxis, shape_string,
 };
+use dm_numpy::ndarray_raw::{NdArray, parse_descriptor};
+use dm_numpy::pickle::{self, Value};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Matrix3, Matrix4, SymmetricEigen, Vector3};
 use ndarray::{Array2, Array3};
 use ndarray_npy::npy::header::Header;
 use serde_json::Value as Json;
-
-use crate::ndarray_raw::{NdArray, parse_descriptor};
-use crate::pickle::{self, Value};
 
 pub const FINAL_DATA_FILE: &str = "final_data.pkl";
 pub const CALIBRATE_FILE: &str = "calibrate.pkl";
@@ -874,7 +873,7 @@ fn read_depth(root: &Path, c: usize, t: usize, camera: &CameraSpec) -> Result<Ve
     let descriptor = header.type_descriptor.as_string().map(String::as_str);
     let Some((element, order)) = descriptor
         .and_then(parse_descriptor)
-        .filter(|(e, _)| *e != crate::Element::Bool)
+        .filter(|(e, _)| *e != dm_numpy::Element::Bool)
     else {
         return Err(BundleError::new(
             &path,

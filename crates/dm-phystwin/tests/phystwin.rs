@@ -7,7 +7,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use dm_bundle::{Bundle, BundleError, Category, MaskKind, UpAxis};
-use dm_prep::phystwin::{ImportOptions, MaskSource, import_phystwin};
+use dm_phystwin::{ImportOptions, MaskSource, import_phystwin};
 
 const FRAMES: usize = 5;
 const CAMERAS: usize = 3;

@@ -1,8 +1,6 @@
 //! Preprocessing into scene bundles (`docs/bundle.md`, `docs/prep.md`).
 //!
-//! Importing a PhysTwin case directory (method.md §10) with
-//! [`import_phystwin`]. PhysTwin stores its tracks and calibration as Python
-//! pickles of numpy arrays; [`pickle`] reads them without Python.
+//! PhysTwin case directories are imported by `dm-phystwin`.
 //!
 //! Preparing a multi-view RGB-D capture ([`capture`], docs/capture.md)
 //! with classical fallbacks that need no model weights: [`segment`],
@@ -21,9 +19,6 @@ pub mod fill;
 pub mod lift;
 pub mod models;
 pub mod monocular;
-pub mod ndarray_raw;
-pub mod phystwin;
-pub mod pickle;
 pub mod prior;
 pub mod scale;
 pub mod score;
@@ -31,7 +26,3 @@ pub mod segment;
 pub mod stages;
 pub mod track2d;
 pub mod video;
-
-pub use ndarray_raw::{ArrayData, ByteOrder, Element, NdArray};
-pub use phystwin::{ImportOptions, ImportSummary, MaskSource, import_phystwin, read_pickle_file};
-pub use pickle::{Limits, PickleError, Value};

@@ -7,11 +7,12 @@
 use std::path::{Path, PathBuf};
 
 use dm_bundle::Bundle;
-use dm_prep::capture::{Calibration, SynthCaptureSink};
+use dm_capture::Calibration;
 use dm_prep::monocular::{DepthSource, MonocularOptions, write_monocular_capture};
 use dm_prep::score::{ScoreFrame, score_tracks, score_tracks_in};
 use dm_prep::stages::{Prep, PrepOptions, Stage};
 use dm_synth::{Preset, SynthConfig};
+use dm_synth_capture::SynthCaptureSink;
 
 /// The issue's bound is 5 mm on full-size scenes (docs/RESULTS.md: rope
 /// 3.5 mm, cloth 4.7 mm); this short scene with a coarse truth (3000
@@ -142,7 +143,7 @@ fn issue8_monocular_clip_with_depth_frames_tracks_match_the_truth() {
     let rig = Calibration::read(&capture).expect("calibration");
     let camera = &rig.cameras[0];
     let clip = capture.join(&camera.name).join("color.mp4");
-    let frames = dm_prep::video::decode_video(&clip).expect("clip decodes");
+    let frames = dm_capture::video::decode_video(&clip).expect("clip decodes");
     let options = MonocularOptions {
         intrinsics: Some([camera.fx, camera.fy, camera.cx, camera.cy]),
         ..MonocularOptions::default()

@@ -2,7 +2,7 @@
 //!
 //! PhysTwin case directories are imported by `dm-phystwin`.
 //!
-//! Preparing a multi-view RGB-D capture ([`capture`], docs/capture.md)
+//! Preparing a multi-view RGB-D capture (`dm-capture`, docs/capture.md)
 //! with classical fallbacks that need no model weights: [`segment`],
 //! [`track2d`], [`lift`], [`fill`], run and cached by [`stages`]; [`score`]
 //! compares the resulting tracks with a reference bundle's.
@@ -14,7 +14,6 @@
 //! segmentation, point tracking, monocular depth) and [`scale`] (metric
 //! scale of monocular depth by median absolute residual).
 
-pub mod capture;
 pub mod fill;
 pub mod lift;
 pub mod models;
@@ -25,4 +24,3 @@ pub mod score;
 pub mod segment;
 pub mod stages;
 pub mod track2d;
-pub mod video;

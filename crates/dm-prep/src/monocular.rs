@@ -17,11 +17,11 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::capture::{
-    CAPTURE_FORMAT, CAPTURE_VERSION, Calibration, CaptureError, CaptureWriter, read_depth_png_m,
-};
 use crate::models::ModelError;
 use crate::models::depth::DepthEstimator;
+use dm_capture::{
+    CAPTURE_FORMAT, CAPTURE_VERSION, Calibration, CaptureError, CaptureWriter, read_depth_png_m,
+};
 
 /// The one camera's name in the capture.
 pub const MONOCULAR_CAMERA: &str = "cam0";
@@ -392,7 +392,7 @@ fn write_clip_capture(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ClipCapture, MonocularError> {
     let video = source.video;
-    let (frames, video_fps) = crate::video::decode_video_with_fps(video)?;
+    let (frames, video_fps) = dm_capture::video::decode_video_with_fps(video)?;
     let fps = source
         .options
         .fps

@@ -170,7 +170,7 @@ pub fn segment_frame(
         let (rw, rh) = (rx1 - rx0, ry1 - ry0);
         let crop =
             image::imageops::crop_imm(rgb, rx0 as u32, ry0 as u32, rw as u32, rh as u32).to_image();
-        let bgr = crate::video::rgb_to_bgr_mat(&crop)?;
+        let bgr = dm_capture::video::rgb_to_bgr_mat(&crop)?;
         let mut mask = Mat::new_rows_cols_with_default(
             rh as i32,
             rw as i32,

@@ -17,7 +17,6 @@ use image::{GrayImage, RgbImage};
 use ndarray::{Array2, Array3};
 use serde::{Deserialize, Serialize};
 
-use crate::capture::{Capture, CaptureError};
 use crate::fill::{
     CarveView, ColoredPoints, carve_interior, fill_sheet, nearest_colors, voxel_thin,
 };
@@ -29,6 +28,7 @@ use crate::models::track::{self as cotracker, PointTracker};
 use crate::models::{Manifest, ModelError, default_models_dir};
 use crate::segment::{SegmentOptions, segment_frame};
 use crate::track2d::{TrackOptions, Tracks2d, grey_mat, on_mask, query_pixels, track_points};
+use dm_capture::{Capture, CaptureError};
 
 /// The stages in the order `all` runs them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -298,7 +298,7 @@ pub struct Prep {
 impl Prep {
     pub fn new(capture_dir: &Path, work: &Path, options: PrepOptions) -> Result<Self, PrepError> {
         let capture = Capture::open(capture_dir)?;
-        let calibration_path = capture_dir.join(crate::capture::CALIBRATION_FILE);
+        let calibration_path = capture_dir.join(dm_capture::CALIBRATION_FILE);
         let cameras = capture
             .calibration
             .cameras

@@ -178,7 +178,7 @@ fn measured_depth(
 
 /// Receives the raw capture while the bundle is rendered: what the rig's
 /// cameras record (noisy colour, measured depth), nothing else. dm-synth's
-/// tool writes it as a capture directory with `dm_prep::capture`.
+/// tool writes it as a capture directory with `dm-synth-capture`.
 pub trait CaptureSink {
     /// Called once before any frame, with the bundle's metadata (cameras,
     /// frame rate, frame count, up axis, floor).

@@ -111,7 +111,7 @@ fn help_lists_the_subcommand() {
 /// network maps colour to depth: red comes out nearer than grey, so the
 /// block stands above the table.)
 fn write_clip(path: &Path) {
-    let mut sink = dm_prep::video::VideoSink::create(path, 30.0, 160, 120).expect("video opens");
+    let mut sink = dm_capture::video::VideoSink::create(path, 30.0, 160, 120).expect("video opens");
     for t in 0..24u32 {
         let frame = image::RgbImage::from_fn(160, 120, |x, y| {
             let left = 50 + t;
@@ -210,7 +210,8 @@ fn write_bright_clip_with_depth(dir: &Path) -> (PathBuf, PathBuf) {
     let depth = dir.join("depth");
     std::fs::create_dir_all(&depth).expect("depth dir");
     let on_block = |t: u32, x: u32, y: u32| (50 + t..90 + t).contains(&x) && (45..85).contains(&y);
-    let mut sink = dm_prep::video::VideoSink::create(&clip, 30.0, 160, 120).expect("video opens");
+    let mut sink =
+        dm_capture::video::VideoSink::create(&clip, 30.0, 160, 120).expect("video opens");
     for t in 0..FRAMES {
         let frame = image::RgbImage::from_fn(160, 120, |x, y| match on_block(t, x, y) {
             true if ((x - 50 - t) / 4 + y / 4) % 2 == 0 => image::Rgb([170, 220, 250]),

@@ -5,8 +5,8 @@
 //! (dm_fuzz::kill).
 
 use dm_fuzz::kill::{KillCheck, assert_kill_and_resume};
-use dm_prep::capture::SynthCaptureSink;
 use dm_synth::{Preset, SynthConfig};
+use dm_synth_capture::SynthCaptureSink;
 use std::path::Path;
 use std::process::Command;
 

@@ -3,9 +3,9 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_prep::capture::SynthCaptureSink;
 use dm_synth::sensor::CaptureSink;
 use dm_synth::{SynthConfig, generate_with_capture};
+use dm_synth_capture::SynthCaptureSink;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 

@@ -11,7 +11,7 @@ use opencv::prelude::{
 use opencv::prelude::{VideoWriterTrait, VideoWriterTraitConst};
 use opencv::videoio;
 
-use crate::capture::CaptureError;
+use crate::CaptureError;
 
 fn video_error(path: &Path, problem: impl Into<String>) -> CaptureError {
     CaptureError::Video {

@@ -1,6 +1,12 @@
 //! The raw multi-view RGB-D capture a camera rig gives (docs/capture.md):
 //! per-camera colour video (or PNG frames), 16-bit depth PNG frames in
 //! millimetres and `calibration.json`. No tracks, no masks.
+//!
+//! [`Capture`] reads one (dm-prep's stages), [`CaptureWriter`] writes one
+//! frame by frame (dm-synth's `--capture-out` through `dm-synth-capture`,
+//! dm-prep's monocular clips); colour video goes through OpenCV ([`video`]).
+
+pub mod video;
 
 use std::path::{Path, PathBuf};
 
@@ -333,70 +339,6 @@ impl CaptureWriter {
         std::fs::rename(&self.dir, &self.final_dir)
             .map_err(|e| BundleError::io(&self.final_dir, "renaming the capture into place", &e))?;
         Ok(())
-    }
-}
-
-/// dm-synth's capture hook writing a capture directory: the calibration
-/// comes from the synthetic bundle's metadata, frames as they are rendered.
-#[cfg(feature = "synth")]
-#[derive(Debug)]
-pub struct SynthCaptureSink {
-    dir: PathBuf,
-    writer: Option<CaptureWriter>,
-}
-
-#[cfg(feature = "synth")]
-impl SynthCaptureSink {
-    pub fn new(dir: &Path) -> Self {
-        Self {
-            dir: dir.to_path_buf(),
-            writer: None,
-        }
-    }
-
-    /// Closes the videos and renames the capture into place.
-    pub fn finish(self) -> Result<(), CaptureError> {
-        match self.writer {
-            Some(writer) => writer.finish(),
-            None => Err(field_error(&self.dir, "file", "no frame was rendered")),
-        }
-    }
-}
-
-#[cfg(feature = "synth")]
-impl dm_synth::sensor::CaptureSink for SynthCaptureSink {
-    fn start(&mut self, meta: &dm_bundle::BundleMeta) -> Result<(), dm_synth::SynthError> {
-        let calibration = Calibration {
-            format: CAPTURE_FORMAT.into(),
-            version: CAPTURE_VERSION,
-            fps: meta.fps,
-            frame_count: meta.frame_count,
-            depth_unit: "millimetres".into(),
-            up_axis: meta.up_axis,
-            floor_height_m: meta.floor_height_m,
-            cameras: meta.cameras.clone(),
-        };
-        self.writer = Some(
-            CaptureWriter::create(&self.dir, calibration)
-                .map_err(|e| dm_synth::SynthError::Capture(e.to_string()))?,
-        );
-        Ok(())
-    }
-
-    fn frame(
-        &mut self,
-        camera: usize,
-        frame: usize,
-        rgb: &RgbImage,
-        depth_m: &[f32],
-    ) -> Result<(), dm_synth::SynthError> {
-        let writer = self
-            .writer
-            .as_mut()
-            .ok_or_else(|| dm_synth::SynthError::Capture("frame before start".into()))?;
-        writer
-            .write_frame(camera, frame, rgb, depth_m)
-            .map_err(|e| dm_synth::SynthError::Capture(e.to_string()))
     }
 }
 

@@ -166,7 +166,7 @@ impl Harness {
             Target::Manifest => {
                 let path = self.scratch.join("models/entry.json");
                 fs::write(&path, input).unwrap_or_else(|e| panic!("scratch write failed: {e}"));
-                dm_prep::models::manifest::Manifest::load_dir(&self.scratch.join("models")).is_ok()
+                dm_prep_models::manifest::Manifest::load_dir(&self.scratch.join("models")).is_ok()
             }
             Target::BundleJson => {
                 fs::write(self.bundle.join("bundle.json"), input)

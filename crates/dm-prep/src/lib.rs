@@ -10,16 +10,14 @@
 //! A monocular clip becomes a one-camera capture with [`monocular`]
 //! (depth frames or a depth network; the floor sets the world frame).
 //!
-//! Model stages: [`models`] (`models_manifest/` and the ONNX adapters:
-//! segmentation, point tracking, monocular depth) and [`scale`] (metric
-//! scale of monocular depth by median absolute residual).
+//! Model stages: `dm-prep-models` (`models_manifest/` and the ONNX adapters:
+//! segmentation, point tracking, monocular depth; metric scale of monocular
+//! depth by median absolute residual).
 
 pub mod fill;
 pub mod lift;
-pub mod models;
 pub mod monocular;
 pub mod prior;
-pub mod scale;
 pub mod score;
 pub mod segment;
 pub mod stages;

@@ -17,11 +17,11 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::models::ModelError;
-use crate::models::depth::DepthEstimator;
 use dm_capture::{
     CAPTURE_FORMAT, CAPTURE_VERSION, Calibration, CaptureError, CaptureWriter, read_depth_png_m,
 };
+use dm_prep_models::ModelError;
+use dm_prep_models::depth::DepthEstimator;
 
 /// The one camera's name in the capture.
 pub const MONOCULAR_CAMERA: &str = "cam0";
@@ -405,11 +405,11 @@ fn write_clip_capture(
     let depth = match source.depth_frames {
         Some(dir) => DepthSource::Frames(dir.to_path_buf()),
         None => {
-            let manifest = crate::models::Manifest::builtin()?;
+            let manifest = dm_prep_models::Manifest::builtin()?;
             let models_dir = source
                 .models_dir
-                .map_or_else(crate::models::default_models_dir, Path::to_path_buf);
-            network = crate::models::load_depth_network(&manifest, &models_dir).map_err(|e| {
+                .map_or_else(dm_prep_models::default_models_dir, Path::to_path_buf);
+            network = dm_prep_models::load_depth_network(&manifest, &models_dir).map_err(|e| {
                 MonocularError::Clip {
                     path: video.to_path_buf(),
                     problem: format!(

@@ -23,12 +23,12 @@ use crate::fill::{
 use crate::lift::{
     LiftOptions, Tracks3d, follow_hand_centroids, fuse_cameras, hold_last, lift_camera, mask_cloud,
 };
-use crate::models::segment::{self as sam2, Prompt, Segmenter};
-use crate::models::track::{self as cotracker, PointTracker};
-use crate::models::{Manifest, ModelError, default_models_dir};
 use crate::segment::{SegmentOptions, segment_frame};
 use crate::track2d::{TrackOptions, Tracks2d, grey_mat, on_mask, query_pixels, track_points};
 use dm_capture::{Capture, CaptureError};
+use dm_prep_models::segment::{self as sam2, Prompt, Segmenter};
+use dm_prep_models::track::{self as cotracker, PointTracker};
+use dm_prep_models::{Manifest, ModelError, default_models_dir};
 
 /// The stages in the order `all` runs them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

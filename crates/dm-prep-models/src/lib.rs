@@ -6,9 +6,13 @@
 //! ([`manifest`]); [`OnnxModel::load`] refuses a file whose inputs/outputs do
 //! not match its entry, and a missing file gives a message naming the model,
 //! its manifest entry, where to put the file and how to obtain it.
+//!
+//! [`scale`] makes monocular depth metric (median absolute residual against
+//! reference depth).
 
 pub mod depth;
 pub mod manifest;
+pub mod scale;
 pub mod segment;
 pub mod track;
 

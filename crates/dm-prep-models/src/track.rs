@@ -6,7 +6,7 @@ use std::path::Path;
 use image::RgbImage;
 use ndarray::{Array2, Array3, Array5, Axis, s};
 
-use super::{InputGeometry, Manifest, ModelError, OnnxModel, image_planes};
+use crate::{InputGeometry, Manifest, ModelError, OnnxModel, image_planes};
 
 pub const TRACKER_ID: &str = "cotracker3";
 /// A track point counts as visible above this visibility probability.

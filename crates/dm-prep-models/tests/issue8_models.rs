@@ -7,13 +7,13 @@
 
 use std::path::PathBuf;
 
-use dm_prep::models::depth::{
+use dm_prep_models::depth::{
     DEPTH_ANYTHING_ID, DepthEstimator, MOGE_ID, apply_scale, fit_metric_scale,
 };
-use dm_prep::models::segment::{Prompt, Segmenter};
-use dm_prep::models::track::PointTracker;
-use dm_prep::models::{Manifest, ModelError, OnnxModel, VerifyStatus, verify_dir};
-use dm_prep::scale::DepthModel;
+use dm_prep_models::scale::DepthModel;
+use dm_prep_models::segment::{Prompt, Segmenter};
+use dm_prep_models::track::PointTracker;
+use dm_prep_models::{Manifest, ModelError, OnnxModel, VerifyStatus, verify_dir};
 use image::{Rgb, RgbImage};
 
 fn fixture_models() -> PathBuf {
@@ -117,7 +117,7 @@ fn verify_checks_signatures_and_pinned_digests() {
         other => panic!("{other:?}"),
     }
     // The right digest passes as pinned.
-    let digest = dm_prep::models::sha256_file(&fixture_models().join(&manifest.entries[0].file))
+    let digest = dm_prep_models::sha256_file(&fixture_models().join(&manifest.entries[0].file))
         .expect("digest");
     pinned.entries[0].sha256 = Some(digest);
     assert!(matches!(

@@ -14,7 +14,7 @@ use dm_bundle::mask_box;
 use image::{GrayImage, Luma, RgbImage};
 use ndarray::{Array2, Array3, ArrayD, Axis, IxDyn, s};
 
-use super::{InputGeometry, Manifest, ModelError, OnnxModel, image_planes, sample_bilinear};
+use crate::{InputGeometry, Manifest, ModelError, OnnxModel, image_planes, sample_bilinear};
 
 pub const ENCODER_ID: &str = "sam2_image_encoder";
 pub const DECODER_ID: &str = "sam2_prompt_decoder";

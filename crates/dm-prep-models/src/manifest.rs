@@ -12,29 +12,29 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::ModelError;
+use crate::ModelError;
 
 /// The manifest files compiled into the binary, by file name.
 const BUILTIN: [(&str, &str); 5] = [
     (
         "sam2_image_encoder.json",
-        include_str!("../../../../models_manifest/sam2_image_encoder.json"),
+        include_str!("../../../models_manifest/sam2_image_encoder.json"),
     ),
     (
         "sam2_prompt_decoder.json",
-        include_str!("../../../../models_manifest/sam2_prompt_decoder.json"),
+        include_str!("../../../models_manifest/sam2_prompt_decoder.json"),
     ),
     (
         "cotracker3.json",
-        include_str!("../../../../models_manifest/cotracker3.json"),
+        include_str!("../../../models_manifest/cotracker3.json"),
     ),
     (
         "depth_anything3.json",
-        include_str!("../../../../models_manifest/depth_anything3.json"),
+        include_str!("../../../models_manifest/depth_anything3.json"),
     ),
     (
         "moge2.json",
-        include_str!("../../../../models_manifest/moge2.json"),
+        include_str!("../../../models_manifest/moge2.json"),
     ),
 ];
 

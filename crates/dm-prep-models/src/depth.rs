@@ -7,8 +7,8 @@ use std::path::Path;
 use image::RgbImage;
 use ndarray::{Array2, ArrayView2, Axis, s};
 
-use super::{Manifest, ModelError, OnnxModel, image_planes, sample_bilinear};
 use crate::scale::{DepthModel, ScaleFit, ScaleFitError, fit_depth_scale, masked_pairs};
+use crate::{Manifest, ModelError, OnnxModel, image_planes, sample_bilinear};
 
 pub const DEPTH_ANYTHING_ID: &str = "depth_anything3";
 pub const MOGE_ID: &str = "moge2";

@@ -161,8 +161,8 @@ impl Harness {
                 let points = dm_splat::ply::read_ply_points(&path).is_ok();
                 splats || points
             }
-            Target::Obj => dm_prep::prior::mesh::Mesh::load(&file("input.obj")).is_ok(),
-            Target::Glb => dm_prep::prior::mesh::Mesh::load(&file("input.glb")).is_ok(),
+            Target::Obj => dm_shape_prior::mesh::Mesh::load(&file("input.obj")).is_ok(),
+            Target::Glb => dm_shape_prior::mesh::Mesh::load(&file("input.glb")).is_ok(),
             Target::Manifest => {
                 let path = self.scratch.join("models/entry.json");
                 fs::write(&path, input).unwrap_or_else(|e| panic!("scratch write failed: {e}"));

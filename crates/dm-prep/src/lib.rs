@@ -1,23 +1,22 @@
-//! Preprocessing into scene bundles (`docs/bundle.md`, `docs/prep.md`).
+//! Preprocessing of RGB-D captures into scene bundles (`docs/bundle.md`,
+//! `docs/prep.md`, `docs/capture.md`): the capture stages and their
+//! orchestration.
 //!
-//! PhysTwin case directories are imported by `dm-phystwin`.
-//!
-//! Preparing a multi-view RGB-D capture (`dm-capture`, docs/capture.md)
-//! with classical fallbacks that need no model weights: [`segment`],
-//! [`track2d`], [`lift`], [`fill`], run and cached by [`stages`]; [`score`]
-//! compares the resulting tracks with a reference bundle's.
+//! A multi-view RGB-D capture (read with `dm-capture`) goes through
+//! classical stages that need no model weights, [`segment`], [`track2d`],
+//! [`lift`], [`fill`], or the ONNX model stages of `dm-prep-models`, run and
+//! cached by [`stages`]; [`score`] compares the resulting tracks with a
+//! reference bundle's.
 //!
 //! A monocular clip becomes a one-camera capture with [`monocular`]
 //! (depth frames or a depth network; the floor sets the world frame).
 //!
-//! Model stages: `dm-prep-models` (`models_manifest/` and the ONNX adapters:
-//! segmentation, point tracking, monocular depth; metric scale of monocular
-//! depth by median absolute residual).
+//! The `dm-prep` tool also drives `dm-phystwin` (PhysTwin case import) and
+//! `dm-shape-prior` (the mesh shape prior).
 
 pub mod fill;
 pub mod lift;
 pub mod monocular;
-pub mod prior;
 pub mod score;
 pub mod segment;
 pub mod stages;

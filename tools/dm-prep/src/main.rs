@@ -17,10 +17,10 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dm_phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
 use dm_prep::monocular::{ClipCapture, ClipSource, MonocularOptions, prepare_clip_capture};
-use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use dm_prep::score::{ScoreFrame, score_tracks_in};
 use dm_prep::stages::{Prep, PrepOptions, SegmentModel, Stage, StageOutcome, TrackModel};
 use dm_prep_models::{Manifest, VerifyStatus, default_models_dir, verify_dir};
+use dm_shape_prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser, Debug)]

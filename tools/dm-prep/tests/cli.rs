@@ -308,7 +308,7 @@ fn issue8_prior_command_writes_the_planted_pose() {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
     let dir = tempfile::tempdir().expect("temp dir");
     let mesh = fixtures().join("meshes/textured_box.glb");
-    let intrinsics = dm_prep::prior::Intrinsics {
+    let intrinsics = dm_shape_prior::Intrinsics {
         fx: 600.0,
         fy: 600.0,
         cx: 319.5,
@@ -321,8 +321,8 @@ fn issue8_prior_command_writes_the_planted_pose() {
         Translation3::from(planted),
         UnitQuaternion::from_scaled_axis(Vector3::new(0.35, -0.6, 0.25)),
     );
-    let loaded = dm_prep::prior::Mesh::load(&mesh).expect("fixture mesh");
-    let observed = dm_prep::prior::render(&loaded, &truth, &intrinsics);
+    let loaded = dm_shape_prior::Mesh::load(&mesh).expect("fixture mesh");
+    let observed = dm_shape_prior::render(&loaded, &truth, &intrinsics);
     let frame = dir.path().join("frame.png");
     observed.color.save(&frame).expect("frame saved");
     let mut points = Vec::new();

@@ -7,9 +7,9 @@ use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use opencv::core::{DMatch, KeyPoint, Mat, Point2f, Point3f, Vector};
 use opencv::prelude::*;
 
-use super::PriorError;
-use super::mesh::Mesh;
-use super::raster::{Intrinsics, Render, render};
+use crate::PriorError;
+use crate::mesh::Mesh;
+use crate::raster::{Intrinsics, Render, render};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PnpOptions {

@@ -8,7 +8,7 @@
 use image::{Rgb, RgbImage};
 use nalgebra::{Isometry3, Vector3};
 
-use super::mesh::Mesh;
+use crate::mesh::Mesh;
 
 /// Pinhole intrinsics and image size.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix4, Point3, Vector3};
 
-use super::PriorError;
+use crate::PriorError;
 
 /// A triangle mesh with per-vertex colours (linear 0–1 RGB). Vertices may be
 /// duplicated along colour seams; [`Mesh::welded`] merges them for ARAP.

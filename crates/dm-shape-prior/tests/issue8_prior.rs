@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use dm_prep::prior::{FitOptions, Intrinsics, Mesh, PnpOptions, PriorError, fit_prior, render};
+use dm_shape_prior::{FitOptions, Intrinsics, Mesh, PnpOptions, PriorError, fit_prior, render};
 use image::{GrayImage, Luma};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 

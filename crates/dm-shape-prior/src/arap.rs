@@ -15,7 +15,7 @@
 
 use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
-use super::PriorError;
+use crate::PriorError;
 use dm_splat::lbs::procrustes_rotation;
 
 /// The dense global solve is O(V³); above this the mesh should be decimated.

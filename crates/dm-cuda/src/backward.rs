@@ -280,6 +280,7 @@ impl<T: DeviceReal> CudaWorld<T> {
                 viscosity: T::zero(),
                 gravity: Vec3::new(params[0], params[1], params[2]),
                 friction: params[3],
+                force_field: Default::default(),
                 damping_factor: sum(stream.clone_dtoh(&buffers.damping)?),
                 mass: stream.clone_dtoh(&buffers.mass)?,
             })

@@ -143,6 +143,7 @@ impl<T: DeviceReal> CudaWorld<T> {
                     gravity: sums.gravity,
                     floor_friction: sums.friction,
                     particle_damping: -sums.damping * (dt * kappa).to_f64(),
+                    force_field: Default::default(),
                 },
                 mass: host.to_caller_order(&sums.mass),
                 anchors_from: (0..m)

@@ -529,5 +529,10 @@ fn check_supported<T: Real>(world: &World<T>) -> Result<(), CudaError> {
                 .into(),
         ));
     }
+    if !world.config().effects.force_field.is_zero() {
+        return Err(CudaError::Unsupported(
+            "a body force (effects.force_field runs on the CPU only); use --device cpu".into(),
+        ));
+    }
     Ok(())
 }

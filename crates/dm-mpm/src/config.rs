@@ -36,6 +36,34 @@ pub struct Effects {
     /// for η ≲ ρ dx² / (6 dt), ≈ 40 Pa·s on the model's grid, where it
     /// moves nothing visible.)
     pub viscosity: f64,
+    /// An open-ended body force per unit mass on the grid (a uniform push,
+    /// drag along world axes, a spring towards a point); all zero by
+    /// default and then left out of a saved model.
+    #[serde(skip_serializing_if = "ForceField::is_zero")]
+    pub force_field: ForceField,
+}
+
+/// A body force per unit mass applied to every grid node with mass, world
+/// frame: a(x, v) = uniform − axis_drag ∘ v − attractor_stiffness (x −
+/// attractor_point), with v the node's velocity before gravity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ForceField {
+    /// Uniform acceleration, m/s² (e.g. a steady wind's push per unit mass).
+    pub uniform: [f64; 3],
+    /// Drag rate along each world axis, 1/s: a_i = −d_i v_i.
+    pub axis_drag: [f64; 3],
+    /// Stiffness of a spring pulling towards `attractor_point`, 1/s².
+    pub attractor_stiffness: f64,
+    /// The point the spring pulls towards, metres (world frame).
+    pub attractor_point: [f64; 3],
+}
+
+impl ForceField {
+    /// Whether the field exerts no force anywhere.
+    pub fn is_zero(&self) -> bool {
+        self.uniform == [0.0; 3] && self.axis_drag == [0.0; 3] && self.attractor_stiffness == 0.0
+    }
 }
 
 /// The time over which [`PhysicsConfig::grid_damping`] applies once:
@@ -237,6 +265,52 @@ impl PhysicsConfig {
             && !(y.is_finite() && y > 0.0)
         {
             return bad("effects.plastic_yield", "must be finite and positive");
+        }
+        let field = &e.force_field;
+        for (name, values) in [
+            ("effects.force_field.uniform", &field.uniform[..]),
+            (
+                "effects.force_field.attractor_point",
+                &field.attractor_point[..],
+            ),
+        ] {
+            if values.iter().any(|v| !v.is_finite()) {
+                return bad(name, "must be finite");
+            }
+        }
+        // Negative rates would feed energy in; an explicit drag or spring
+        // stiffer than 1/dt (1/dt² for the spring) would overshoot.
+        for (name, value, limit) in [
+            (
+                "effects.force_field.axis_drag",
+                field.axis_drag[0],
+                1.0 / self.dt,
+            ),
+            (
+                "effects.force_field.axis_drag",
+                field.axis_drag[1],
+                1.0 / self.dt,
+            ),
+            (
+                "effects.force_field.axis_drag",
+                field.axis_drag[2],
+                1.0 / self.dt,
+            ),
+            (
+                "effects.force_field.attractor_stiffness",
+                field.attractor_stiffness,
+                1.0 / (self.dt * self.dt),
+            ),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(name, "must be finite and non-negative");
+            }
+            if value >= limit {
+                return bad(
+                    name,
+                    "is too stiff for the substep (rate × dt must stay below 1)",
+                );
+            }
         }
         Ok(())
     }

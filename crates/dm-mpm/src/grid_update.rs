@@ -1,4 +1,4 @@
-//! Stage 3: momentum to velocity, gravity, grid damping, the implicit
+//! Stage 3: momentum to velocity, gravity and any body force, grid damping, the implicit
 //! viscous solve when η > 0 (`viscosity.rs`), then slip walls at the
 //! domain faces and the floor (with optional Coulomb friction).
 
@@ -8,16 +8,25 @@ use crate::state::Consts;
 use crate::viscosity::{ViscousSolver, viscosity_solve};
 use rayon::prelude::*;
 
-/// u = (P/m + dt g) γ of a node with lanes `[P, m]`; `None` for a node too
-/// light to divide by safely (treated as empty).
+/// u = (w + dt (g + a(x, w))) γ of node `idx` with lanes `[P, m]`, w = P/m
+/// and a the body force (zero without one); `None` for a node too light
+/// to divide by safely (treated as empty).
 #[inline(always)]
-pub(crate) fn node_velocity<T: Real>(k: &Consts<T>, lanes: &[T; 4]) -> Option<Vec3<T>> {
+pub(crate) fn node_velocity<T: Real>(
+    k: &Consts<T>,
+    idx: [usize; 3],
+    lanes: &[T; 4],
+) -> Option<Vec3<T>> {
     let m = lanes[3];
     if m <= k.empty_node_mass {
         return None;
     }
     let v = Vec3::new(lanes[0], lanes[1], lanes[2]) / m;
-    Some((v + k.gravity * k.dt) * k.grid_damping)
+    let mut accel = k.gravity;
+    if let Some(field) = &k.force_field {
+        accel += field.accel(&node_position(k, idx), &v);
+    }
+    Some((v + accel * k.dt) * k.grid_damping)
 }
 
 /// World position of node `idx`.
@@ -100,7 +109,7 @@ pub fn grid_update<T: Real>(
         let whole = ([0; 3], [grid.res; 3]);
         for_each_node_in(grid, occupied.unwrap_or(whole), |idx, node| {
             let lanes = node.to_array();
-            *node = match node_velocity(k, &lanes) {
+            *node = match node_velocity(k, idx, &lanes) {
                 Some(u) => {
                     let v = apply_boundaries(k, idx, u);
                     T::Lane4::from_array([v.x, v.y, v.z, lanes[3]])
@@ -122,9 +131,9 @@ pub fn grid_update<T: Real>(
 /// Lanes `[P, m]` become `[u, m]`, u the node velocity before the viscous
 /// solve and the boundaries (empty nodes zero).
 pub(crate) fn node_velocities<T: Real>(k: &Consts<T>, grid: &mut Grid<T>) {
-    for_each_node(grid, |_, node| {
+    for_each_node(grid, |idx, node| {
         let lanes = node.to_array();
-        *node = match node_velocity(k, &lanes) {
+        *node = match node_velocity(k, idx, &lanes) {
             Some(u) => T::Lane4::from_array([u.x, u.y, u.z, lanes[3]]),
             None => T::Lane4::default(),
         };

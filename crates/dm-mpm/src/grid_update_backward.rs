@@ -24,10 +24,16 @@
 //! Gravity (a learnable tilt): ḡ = dt γ Σ ū_pre over the nodes
 //! with mass, summed per slab and then over slabs in order, so the sum
 //! does not depend on the thread count.
+//!
+//! A body force a = a₀ − D w − κ (x − p) (w = P/m, D diagonal, x the
+//! node's position) adds dt a to u_pre before γ: the node's velocity
+//! adjoint becomes w̄ = γ (1 − dt D) ū_pre, and the parameters' adjoints
+//! are ā₀ = ḡ, D̄ = −dt γ Σ ū_pre ∘ w, κ̄ = −dt γ Σ ū_pre · (x − p) and
+//! p̄ = κ ḡ, summed as ḡ is.
 
 use crate::SimError;
 use crate::grid::Grid;
-use crate::grid_update::{node_position, node_velocities};
+use crate::grid_update::{node_position, node_velocities, node_velocity};
 use crate::real::{Lane4, Real, Vec3};
 use crate::state::Consts;
 use crate::viscosity::ViscousSolver;
@@ -42,17 +48,104 @@ pub struct GridParameterGrads<T: Real> {
     pub gravity: Vec3<T>,
     /// Adjoint of the floor's Coulomb friction μ (zero when μ = 0).
     pub friction: T,
+    /// Adjoints of the body force's parameters (zero without one).
+    pub force_field: ForceFieldGrads<T>,
 }
 
-/// dt γ Σ ū_pre of one slab's nodes with mass (see the module docs).
-fn slab_gravity_adjoint<T: Real>(k: &Consts<T>, slab: &[T::Lane4], grad: &[Vec3<T>]) -> Vec3<T> {
-    let mut sum = Vec3::zeros();
-    for (node, g) in slab.iter().zip(grad) {
-        if node.to_array()[3] > k.empty_node_mass {
-            sum += g;
+/// Adjoints of `config::ForceField`'s parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ForceFieldGrads<T> {
+    pub uniform: Vec3<T>,
+    pub axis_drag: Vec3<T>,
+    pub attractor_stiffness: T,
+    pub attractor_point: Vec3<T>,
+}
+
+impl<T: Real> Default for ForceFieldGrads<T> {
+    fn default() -> Self {
+        Self {
+            uniform: Vec3::zeros(),
+            axis_drag: Vec3::zeros(),
+            attractor_stiffness: T::zero(),
+            attractor_point: Vec3::zeros(),
         }
     }
-    sum * (k.dt * k.grid_damping)
+}
+
+/// One slab's sums over its nodes with mass: Σ ū_pre (gravity), and with
+/// a body force Σ ū_pre ∘ w and Σ ū_pre · (x − p) (see the module docs).
+#[derive(Clone, Copy)]
+struct SlabSums<T: Real> {
+    gravity: Vec3<T>,
+    along_velocity: Vec3<T>,
+    along_offset: T,
+}
+
+impl<T: Real> SlabSums<T> {
+    fn zero() -> Self {
+        Self {
+            gravity: Vec3::zeros(),
+            along_velocity: Vec3::zeros(),
+            along_offset: T::zero(),
+        }
+    }
+
+    /// Adds node `idx` (momentum P, mass m) with velocity adjoint `gu`.
+    #[inline(always)]
+    fn add(&mut self, k: &Consts<T>, idx: [usize; 3], momentum: Vec3<T>, m: T, gu: Vec3<T>) {
+        self.gravity += gu;
+        if let Some(field) = &k.force_field {
+            self.along_velocity += gu.component_mul(&(momentum / m));
+            self.along_offset += gu.dot(&(node_position(k, idx) - field.attractor_point));
+        }
+    }
+
+    /// Scaled by dt γ, as the parameters' adjoints are.
+    fn scaled(self, k: &Consts<T>) -> Self {
+        let scale = k.dt * k.grid_damping;
+        Self {
+            gravity: self.gravity * scale,
+            along_velocity: self.along_velocity * scale,
+            along_offset: self.along_offset * scale,
+        }
+    }
+
+    /// Sums the slabs' scaled sums in order (independent of the thread
+    /// count) into the gravity's and the body force's adjoints.
+    fn parameters(
+        k: &Consts<T>,
+        slabs: impl Iterator<Item = Self>,
+    ) -> (Vec3<T>, ForceFieldGrads<T>) {
+        let total = slabs.fold(Self::zero(), |a, b| Self {
+            gravity: a.gravity + b.gravity,
+            along_velocity: a.along_velocity + b.along_velocity,
+            along_offset: a.along_offset + b.along_offset,
+        });
+        let field = match &k.force_field {
+            Some(field) => ForceFieldGrads {
+                uniform: total.gravity,
+                axis_drag: -total.along_velocity,
+                attractor_stiffness: -total.along_offset,
+                attractor_point: total.gravity * field.attractor_stiffness,
+            },
+            None => ForceFieldGrads::default(),
+        };
+        (total.gravity, field)
+    }
+}
+
+/// [`SlabSums`] of slab `i` given its nodes and their ū_pre.
+fn slab_sums<T: Real>(k: &Consts<T>, i: usize, slab: &[T::Lane4], grad: &[Vec3<T>]) -> SlabSums<T> {
+    let res = k.res;
+    let mut sums = SlabSums::zero();
+    for (jk, (node, g)) in slab.iter().zip(grad).enumerate() {
+        let lanes = node.to_array();
+        if lanes[3] > k.empty_node_mass {
+            let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
+            sums.add(k, [i, jk / res, jk % res], momentum, lanes[3], *g);
+        }
+    }
+    sums.scaled(k)
 }
 
 /// Adjoint of the grid update. `pre` is the grid right after P2G
@@ -70,39 +163,36 @@ pub fn grid_update_backward<T: Real>(
     grad_pre.clear();
     grad_pre.resize(pre.nodes.len(), T::Lane4::default());
     if k.viscosity == T::zero() {
-        let slab_sums: Vec<(Vec3<T>, T)> = grad_pre
+        let slab_sums: Vec<(SlabSums<T>, T)> = grad_pre
             .par_chunks_mut(res * res)
             .zip(pre.nodes.par_chunks(res * res))
             .zip(grad_u.par_chunks(res * res))
             .enumerate()
             .map(|(i, ((out, slab), gslab))| {
-                let (mut gravity, mut friction) = (Vec3::zeros(), T::zero());
+                let (mut sums, mut friction) = (SlabSums::zero(), T::zero());
                 for (jk, (o, (node, g))) in out.iter_mut().zip(slab.iter().zip(gslab)).enumerate() {
                     let lanes = node.to_array();
-                    let m = lanes[3];
-                    if m <= k.empty_node_mass {
+                    let idx = [i, jk / res, jk % res];
+                    let Some(u) = node_velocity(k, idx, &lanes) else {
                         continue;
-                    }
+                    };
                     let momentum = Vec3::new(lanes[0], lanes[1], lanes[2]);
-                    let u = (momentum / m + k.gravity * k.dt) * k.grid_damping;
                     let ga = g.to_array();
-                    let (gu, friction_share) = boundaries_adjoint(
-                        k,
-                        [i, jk / res, jk % res],
-                        u,
-                        Vec3::new(ga[0], ga[1], ga[2]),
-                    );
-                    gravity += gu;
+                    let (gu, friction_share) =
+                        boundaries_adjoint(k, idx, u, Vec3::new(ga[0], ga[1], ga[2]));
+                    sums.add(k, idx, momentum, lanes[3], gu);
                     friction += friction_share;
-                    *o = velocity_adjoint(k, momentum, m, gu, T::zero());
+                    *o = velocity_adjoint(k, momentum, lanes[3], gu, T::zero());
                 }
-                (gravity * (k.dt * k.grid_damping), friction)
+                (sums.scaled(k), friction)
             })
             .collect();
+        let (gravity, force_field) = SlabSums::parameters(k, slab_sums.iter().map(|s| s.0));
         return Ok(GridParameterGrads {
             viscosity: T::zero(),
-            gravity: slab_sums.iter().fold(Vec3::zeros(), |a, b| a + b.0),
+            gravity,
             friction: slab_sums.iter().fold(T::zero(), |a, b| a + b.1),
+            force_field,
         });
     }
     // u per node, then the viscous solve's v: recomputed, as the rest of
@@ -157,14 +247,14 @@ pub fn grid_update_backward<T: Real>(
         }
         grad_viscosity = vjp.viscosity;
     }
-    let gravity = pre
+    let slabs: Vec<SlabSums<T>> = pre
         .nodes
         .par_chunks(res * res)
         .zip(grad_v.par_chunks(res * res))
-        .map(|(slab, grad)| slab_gravity_adjoint(k, slab, grad))
-        .collect::<Vec<_>>()
-        .iter()
-        .fold(Vec3::zeros(), |a, b| a + b);
+        .enumerate()
+        .map(|(i, (slab, grad))| slab_sums(k, i, slab, grad))
+        .collect();
+    let (gravity, force_field) = SlabSums::parameters(k, slabs.into_iter());
     grad_pre
         .par_iter_mut()
         .zip(&pre.nodes)
@@ -184,19 +274,24 @@ pub fn grid_update_backward<T: Real>(
         viscosity: grad_viscosity,
         gravity,
         friction: friction_sums.iter().fold(T::zero(), |a, b| a + *b),
+        force_field,
     })
 }
 
-/// `[P̄, m̄]` of u = (P/m + dt g) γ given ū, plus `extra_mass` (m̄ from the
-/// viscous solve).
+/// `[P̄, m̄]` of u = (P/m + dt (g + a)) γ given ū, plus `extra_mass` (m̄
+/// from the viscous solve); a body force's axis drag scales w̄ by
+/// 1 − dt D.
 #[inline(always)]
 fn velocity_adjoint<T: Real>(
     k: &Consts<T>,
     momentum: Vec3<T>,
     m: T,
-    gu: Vec3<T>,
+    mut gu: Vec3<T>,
     extra_mass: T,
 ) -> T::Lane4 {
+    if let Some(field) = &k.force_field {
+        gu -= gu.component_mul(&field.axis_drag) * k.dt;
+    }
     let gp = gu * (k.grid_damping / m);
     let gm = -gu.dot(&momentum) * k.grid_damping / (m * m) + extra_mass;
     T::Lane4::from_array([gp.x, gp.y, gp.z, gm])

@@ -33,7 +33,7 @@ pub mod viscosity;
 pub mod world;
 
 pub use actuators::{ActuatorConfig, ActuatorMode};
-pub use config::{Effects, FloorConfig, GRID_DAMPING_REFERENCE_DT, PhysicsConfig};
+pub use config::{Effects, FloorConfig, ForceField, GRID_DAMPING_REFERENCE_DT, PhysicsConfig};
 pub use material::{MaterialBounds, MaterialPatches, ParticleMaterial, PatchParams};
 pub use real::Real;
 pub use world::World;

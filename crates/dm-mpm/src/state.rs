@@ -61,6 +61,25 @@ pub struct FloorConsts<T> {
     pub friction: T,
 }
 
+/// The grid's body force (`config::ForceField`) in simulation precision.
+#[derive(Clone, Copy, Debug)]
+pub struct ForceFieldConsts<T> {
+    pub uniform: Vec3<T>,
+    pub axis_drag: Vec3<T>,
+    pub attractor_stiffness: T,
+    pub attractor_point: Vec3<T>,
+}
+
+impl<T: Real> ForceFieldConsts<T> {
+    /// The acceleration at node position `x` moving at `v`.
+    #[inline(always)]
+    pub fn accel(&self, x: &Vec3<T>, v: &Vec3<T>) -> Vec3<T> {
+        self.uniform
+            - self.axis_drag.component_mul(v)
+            - (x - self.attractor_point) * self.attractor_stiffness
+    }
+}
+
 /// Constants of one substep, derived once from the config.
 #[derive(Clone, Copy, Debug)]
 pub struct Consts<T> {
@@ -89,6 +108,8 @@ pub struct Consts<T> {
     pub density: T,
     /// Nodes lighter than this are empty.
     pub empty_node_mass: T,
+    /// The grid's body force; `None` when it exerts none.
+    pub force_field: Option<ForceFieldConsts<T>>,
 }
 
 impl<T: Real> Consts<T> {
@@ -129,6 +150,15 @@ impl<T: Real> Consts<T> {
             viscosity: T::lit(effects.viscosity),
             density: T::lit(config.density),
             empty_node_mass: T::lit(config.empty_node_mass_ratio * mean_particle_mass),
+            force_field: (!effects.force_field.is_zero()).then(|| {
+                let field = &effects.force_field;
+                ForceFieldConsts {
+                    uniform: vec3(field.uniform),
+                    axis_drag: vec3(field.axis_drag),
+                    attractor_stiffness: T::lit(field.attractor_stiffness),
+                    attractor_point: vec3(field.attractor_point),
+                }
+            }),
         }
     }
 }

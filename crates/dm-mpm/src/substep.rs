@@ -9,7 +9,7 @@ use crate::g2p::{ParticleFailure, g2p};
 use crate::g2p_backward::{GatherAdjoint, NodeVelocityGrads, ParticleGrads, g2p_backward};
 use crate::grid::{Grid, GridBox, NodeBox};
 use crate::grid_update::grid_update;
-use crate::grid_update_backward::grid_update_backward;
+use crate::grid_update_backward::{ForceFieldGrads, grid_update_backward};
 use crate::material::ParticleMaterial;
 use crate::p2g::{BlockSchedule, p2g};
 use crate::p2g_backward::p2g_particle_vjp;
@@ -107,6 +107,8 @@ pub struct SubstepGrads<T> {
     pub gravity: Vec3<T>,
     /// Adjoint of the floor's Coulomb friction μ.
     pub friction: T,
+    /// Adjoints of the grid's body force (zero without one).
+    pub force_field: ForceFieldGrads<T>,
     /// Adjoint of the per-substep particle damping factor κ = e^(−c dt).
     pub damping_factor: T,
     /// Adjoint of each particle's mass (a density gradient's parameter).
@@ -222,6 +224,7 @@ impl<T: Real> SubstepGrads<T> {
             viscosity: T::zero(),
             gravity: Vec3::zeros(),
             friction: T::zero(),
+            force_field: ForceFieldGrads::default(),
             damping_factor: T::zero(),
             mass: vec![T::zero(); n],
         }
@@ -322,6 +325,7 @@ pub(crate) fn substep_backward_into<T: Real>(
     grads.viscosity = grid_parameters.viscosity;
     grads.gravity = grid_parameters.gravity;
     grads.friction = grid_parameters.friction;
+    grads.force_field = grid_parameters.force_field;
     let grad_pre = &scratch.grad_pre;
     let impulses = &scratch.impulses;
     let state = &mut grads.state;

@@ -12,6 +12,7 @@
 use crate::SimError;
 use crate::actuators::ActuatorMode;
 use crate::actuators_backward::GainGrads;
+use crate::config::ForceField;
 use crate::g2p_backward::ParticleGrads;
 use crate::real::{Real, Vec3};
 use crate::state::Particles;
@@ -124,6 +125,9 @@ pub struct EffectGrads {
     pub floor_friction: f64,
     /// ∂L/∂c, the particle damping rate (1/s; `PhysicsConfig::particle_damping`).
     pub particle_damping: f64,
+    /// ∂L/∂ of each parameter of the grid's body force, in its own units
+    /// (`Effects::force_field`; zero without one).
+    pub force_field: ForceField,
 }
 
 impl std::ops::AddAssign for EffectGrads {
@@ -133,8 +137,13 @@ impl std::ops::AddAssign for EffectGrads {
         self.viscosity += other.viscosity;
         self.floor_friction += other.floor_friction;
         self.particle_damping += other.particle_damping;
+        let (field, other_field) = (&mut self.force_field, &other.force_field);
+        field.attractor_stiffness += other_field.attractor_stiffness;
         for a in 0..3 {
             self.gravity[a] += other.gravity[a];
+            field.uniform[a] += other_field.uniform[a];
+            field.axis_drag[a] += other_field.axis_drag[a];
+            field.attractor_point[a] += other_field.attractor_point[a];
         }
     }
 }
@@ -257,8 +266,13 @@ impl<T: Real> World<T> {
             // κ = e^(−c dt): ∂κ/∂c = −dt κ.
             effects.particle_damping -=
                 (step.damping_factor * k.dt * k.particle_damping_factor).to_f64();
+            let (field, step_field) = (&mut effects.force_field, &step.force_field);
+            field.attractor_stiffness += step_field.attractor_stiffness.to_f64();
             for a in 0..3 {
                 effects.gravity[a] += step.gravity[a].to_f64();
+                field.uniform[a] += step_field.uniform[a].to_f64();
+                field.axis_drag[a] += step_field.axis_drag[a].to_f64();
+                field.attractor_point[a] += step_field.attractor_point[a].to_f64();
             }
             for p in 0..n {
                 mu[p] += step.mu[p];

@@ -527,3 +527,74 @@ fn frame_adjoint_of_the_hand_anchors_matches_finite_differences() {
         "the hands must move the loss"
     );
 }
+
+/// The grid's body force a = a₀ − D v − κ (x − p) through a whole frame,
+/// actuators coupled, without and with the viscous solve (its adjoint
+/// takes the other path through the grid update's backward pass). Each
+/// parameter group is probed along a direction as large as itself (the
+/// uniform push and the point along fixed directions of their own scale),
+/// as for the effect coefficients above.
+#[test]
+fn frame_adjoint_of_the_body_force_matches_finite_differences() {
+    for viscosity in [0.0, 3000.0] {
+        let field = dm_mpm::ForceField {
+            uniform: [0.5, -0.3, 0.2],
+            axis_drag: [2.0, 0.5, 4.0],
+            attractor_stiffness: 50.0,
+            attractor_point: [0.02, 0.01, 0.15],
+        };
+        let base = dm_mpm::Effects {
+            air_drag_linear: 0.5,
+            viscosity,
+            force_field: field,
+            ..dm_mpm::Effects::default()
+        };
+        let mut w = world();
+        w.set_effects(base.clone()).expect("effects");
+        let start = w.state();
+        let to = anchors_to();
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let (probe, grads) = probed_frame(&mut w, &mut rng);
+        let g = grads.effects.force_field;
+        assert_eq!(
+            g.uniform, grads.effects.gravity,
+            "a uniform push acts as gravity does"
+        );
+        let uniform_direction = [0.6, -0.8, 0.3];
+        let point_direction = [0.03, -0.02, 0.04];
+        type Perturb = fn(&mut dm_mpm::ForceField, &dm_mpm::ForceField, f64);
+        let dot = |a: [f64; 3], b: [f64; 3]| (0..3).map(|i| a[i] * b[i]).sum::<f64>();
+        let groups: [(&str, f64, Perturb); 4] = [
+            ("uniform", dot(g.uniform, uniform_direction), |f, b, h| {
+                f.uniform = std::array::from_fn(|a| b.uniform[a] + h * [0.6, -0.8, 0.3][a]);
+            }),
+            ("axis_drag", dot(g.axis_drag, field.axis_drag), |f, b, h| {
+                f.axis_drag = b.axis_drag.map(|d| d * (1.0 + h));
+            }),
+            (
+                "attractor_stiffness",
+                g.attractor_stiffness * field.attractor_stiffness,
+                |f, b, h| f.attractor_stiffness = b.attractor_stiffness * (1.0 + h),
+            ),
+            (
+                "attractor_point",
+                dot(g.attractor_point, point_direction),
+                |f, b, h| {
+                    f.attractor_point =
+                        std::array::from_fn(|a| b.attractor_point[a] + h * [0.03, -0.02, 0.04][a]);
+                },
+            ),
+        ];
+        for (name, analytic, perturb) in groups {
+            assert!(analytic != 0.0, "{name}: the frame must depend on it");
+            check(&format!("{name} (η = {viscosity})"), analytic, &mut |h| {
+                let mut effects = base.clone();
+                perturb(&mut effects.force_field, &field, h);
+                w.set_effects(effects).expect("effects");
+                w.set_state(&start).expect("state");
+                w.step_frame(&FROM, &to, &[true, true]).expect("frame");
+                loss(&w.state(), &probe)
+            });
+        }
+    }
+}

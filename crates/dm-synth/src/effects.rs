@@ -34,9 +34,22 @@ pub enum EffectName {
     /// magnitude = a, density ∝ 1 + a·s with s from 0 at one end to 1 at
     /// the other (end drawn from the seed), so one end is (1 + a)× heavier.
     DensityVariation,
+    /// A steady horizontal push on every particle, outside the diagnosis
+    /// library; magnitude = acceleration (m/s²), direction drawn from the
+    /// seed.
+    Wind,
+    /// A spring pulling every particle towards a fixed point, outside the
+    /// library; magnitude = stiffness κ in a = −κ (x − p) (1/s²), the point
+    /// drawn from the seed beside the object.
+    Attractor,
+    /// Linear drag along one world axis only, outside the library;
+    /// magnitude = rate d in a_i = −d v_i (1/s), the axis drawn from the
+    /// seed.
+    AnisotropicDrag,
 }
 
 impl EffectName {
+    /// The diagnosis library's effects (what `dm-diagnose` can name).
     pub const ALL: [EffectName; 9] = [
         EffectName::AirDrag,
         EffectName::AirDragQuadratic,
@@ -49,6 +62,19 @@ impl EffectName {
         EffectName::DensityVariation,
     ];
 
+    /// Effects the library has no candidate for: a diagnosis can only
+    /// discover them as an open-ended force term.
+    pub const OUTSIDE_LIBRARY: [EffectName; 3] = [
+        EffectName::Wind,
+        EffectName::Attractor,
+        EffectName::AnisotropicDrag,
+    ];
+
+    /// Whether the diagnosis library has a candidate for this effect.
+    pub fn in_library(self) -> bool {
+        !Self::OUTSIDE_LIBRARY.contains(&self)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             EffectName::AirDrag => "air_drag",
@@ -60,11 +86,15 @@ impl EffectName {
             EffectName::GroundTilt => "ground_tilt",
             EffectName::ActuatorLag => "actuator_lag",
             EffectName::DensityVariation => "density_variation",
+            EffectName::Wind => "wind",
+            EffectName::Attractor => "attractor",
+            EffectName::AnisotropicDrag => "anisotropic_drag",
         }
     }
 
     /// The diagnosis library's name for this hidden effect (`air_drag`
-    /// covers its linear and quadratic forms).
+    /// covers its linear and quadratic forms; an effect outside the
+    /// library keeps its own name, which no candidate has).
     pub fn library_name(self) -> &'static str {
         match self {
             EffectName::AirDragQuadratic => "air_drag",
@@ -84,6 +114,9 @@ impl EffectName {
             EffectName::GroundTilt => 6.0,
             EffectName::ActuatorLag => 0.1,
             EffectName::DensityVariation => 3.0,
+            EffectName::Wind => 1.0,
+            EffectName::Attractor => 10.0,
+            EffectName::AnisotropicDrag => 20.0,
         }
     }
 
@@ -102,6 +135,12 @@ impl EffectName {
             EffectName::GroundTilt => [5.0, 10.0],
             EffectName::ActuatorLag => [0.08, 0.15],
             EffectName::DensityVariation => [2.0, 4.0],
+            // About the horizontal pull of a 3–9° tilt.
+            EffectName::Wind => [0.5, 1.5],
+            // 0.5–1.5 m/s² at the point's 0.1 m from the object's centre.
+            EffectName::Attractor => [5.0, 15.0],
+            // As the library's air drag.
+            EffectName::AnisotropicDrag => [15.0, 30.0],
         }
     }
 
@@ -132,13 +171,13 @@ impl std::str::FromStr for EffectSpec {
             Some((n, m)) => (n, Some(m)),
             None => (text, None),
         };
-        let name = EffectName::ALL
+        let every = EffectName::ALL
             .into_iter()
-            .find(|e| e.name() == name)
-            .ok_or_else(|| {
-                let known: Vec<&str> = EffectName::ALL.iter().map(|e| e.name()).collect();
-                format!("unknown effect `{name}`; known: {}", known.join(", "))
-            })?;
+            .chain(EffectName::OUTSIDE_LIBRARY);
+        let name = every.clone().find(|e| e.name() == name).ok_or_else(|| {
+            let known: Vec<&str> = every.map(|e| e.name()).collect();
+            format!("unknown effect `{name}`; known: {}", known.join(", "))
+        })?;
         let magnitude = match magnitude {
             None => name.default_magnitude(),
             Some(m) => m
@@ -177,6 +216,9 @@ impl EffectSpec {
             EffectName::GroundTilt => "tilt_deg",
             EffectName::ActuatorLag => "lag_s",
             EffectName::DensityVariation => "heavy_end_excess",
+            EffectName::Wind => "magnitude_m_s2",
+            EffectName::Attractor => "stiffness_per_s2",
+            EffectName::AnisotropicDrag => "rate_per_s",
         };
         p.insert(key.to_string(), serde_json::json!(self.magnitude));
         if let Some((centre, radius)) = inclusion {
@@ -223,6 +265,11 @@ mod tests {
             assert_eq!(spec.magnitude, name.default_magnitude());
             let [lo, hi] = name.test_range();
             assert!(0.0 < lo && lo < hi, "{}", name.name());
+        }
+        for name in EffectName::OUTSIDE_LIBRARY {
+            let spec: EffectSpec = format!("{}:2", name.name()).parse().expect("known name");
+            assert_eq!((spec.name, spec.magnitude), (name, 2.0));
+            assert!(!name.in_library());
         }
         assert!("ground_tilt:-3".parse::<EffectSpec>().is_err());
         assert!("gravity_wobble".parse::<EffectSpec>().is_err());

@@ -51,7 +51,12 @@ impl Engine {
             Engine::Mpm => true,
             Engine::Mujoco => !matches!(
                 effect,
-                EffectName::AirDragQuadratic | EffectName::Plasticity | EffectName::StiffInclusion
+                EffectName::AirDragQuadratic
+                    | EffectName::Plasticity
+                    | EffectName::StiffInclusion
+                    | EffectName::Wind
+                    | EffectName::Attractor
+                    | EffectName::AnisotropicDrag
             ),
         }
     }
@@ -470,7 +475,12 @@ fn scene_request(
             // The hands move the same; only their record lags.
             EffectName::ActuatorLag => {}
             // Refused by `check_effect` before any request is made.
-            EffectName::AirDragQuadratic | EffectName::Plasticity | EffectName::StiffInclusion => {}
+            EffectName::AirDragQuadratic
+            | EffectName::Plasticity
+            | EffectName::StiffInclusion
+            | EffectName::Wind
+            | EffectName::Attractor
+            | EffectName::AnisotropicDrag => {}
         }
     }
     request

@@ -7,7 +7,7 @@ use crate::field::SmoothField;
 use crate::shapes::{ParticleCloud, Preset};
 use crate::{Progress, SynthConfig, SynthError, splitmix};
 use dm_mpm::domain::cube_domain_containing;
-use dm_mpm::{ActuatorConfig, ActuatorMode, ParticleMaterial, PhysicsConfig, World};
+use dm_mpm::{ActuatorConfig, ActuatorMode, ForceField, ParticleMaterial, PhysicsConfig, World};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -286,6 +286,47 @@ pub(crate) fn tilted_gravity(
     gravity
 }
 
+/// The grid body force of an effect outside the diagnosis library, its
+/// direction, point or axis drawn from the seed; what a diagnosis should
+/// recover goes into the truth file's effect parameters (for `wind` its
+/// world-frame unit `direction` and `magnitude_m_s2`).
+pub(crate) fn body_force(
+    config: &SynthConfig,
+    name: EffectName,
+    magnitude: f64,
+    effect_extra: &mut BTreeMap<String, serde_json::Value>,
+) -> ForceField {
+    let azimuth = seeded_angle(config.seed ^ 0xf0ce);
+    let horizontal = [azimuth.cos(), azimuth.sin(), 0.0];
+    let mut field = ForceField::default();
+    match name {
+        EffectName::Wind => {
+            field.uniform = horizontal.map(|c| c * magnitude);
+            effect_extra.insert("direction".into(), serde_json::json!(horizontal));
+        }
+        EffectName::Attractor => {
+            let (lo, hi) = config.preset.bounds();
+            let centre: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
+            field.attractor_stiffness = magnitude;
+            field.attractor_point =
+                std::array::from_fn(|a| centre[a] + ATTRACTOR_OFFSET_M * horizontal[a]);
+            effect_extra.insert("point_m".into(), serde_json::json!(field.attractor_point));
+        }
+        EffectName::AnisotropicDrag => {
+            let axis = (splitmix(config.seed ^ 0xa5d7) % 3) as usize;
+            field.axis_drag[axis] = magnitude;
+            let direction: [f64; 3] = std::array::from_fn(|a| if a == axis { 1.0 } else { 0.0 });
+            effect_extra.insert("axis".into(), serde_json::json!(axis));
+            effect_extra.insert("direction".into(), serde_json::json!(direction));
+        }
+        _ => {}
+    }
+    field
+}
+
+/// How far beside the object's centre an `attractor` pulls (horizontally).
+const ATTRACTOR_OFFSET_M: f64 = 0.1;
+
 /// Density factors `1 + a s` of `density_variation` at `positions`, `s`
 /// running from 0 to 1 along the preset's longest axis towards the heavy
 /// end; the axis and end go into the truth file's effect parameters.
@@ -430,6 +471,10 @@ fn truth_setup(
             name: EffectName::GroundTilt,
             magnitude,
         }) => physics.gravity = tilted_gravity(config.seed, magnitude, &mut effect_extra),
+        Some(EffectSpec {
+            name: name @ (EffectName::Wind | EffectName::Attractor | EffectName::AnisotropicDrag),
+            magnitude,
+        }) => physics.effects.force_field = body_force(config, name, magnitude, &mut effect_extra),
         _ => {}
     }
     let density_factors = match config.effect {

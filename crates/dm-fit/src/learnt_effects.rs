@@ -72,6 +72,20 @@ pub const DAMPING_GROUP: &str = "particle_damping_log";
 pub const DAMPING_RATE_FACTOR: f64 = 3.0;
 /// The lowest learnt particle damping rate, 1/s.
 pub const MIN_PARTICLE_DAMPING: f64 = 0.5;
+/// Adam's group of the grid's body force: its uniform push, axis drags and
+/// spring stiffness, each divided by [`FORCE_FIELD_SCALES`].
+pub const FORCE_FIELD_GROUP: &str = "force_field";
+/// The body force's Adam rate relative to the effect rate: 0.3 scale
+/// units per step at the default.
+pub const FORCE_FIELD_RATE_FACTOR: f64 = 3.0;
+/// Units of the body force's group, so that one Adam step moves each
+/// parameter by a similar share of its plausible range: m/s² for the
+/// push (a 6° tilt pulls sideways by 1 m/s²), 10 /s for the axis drags
+/// (the thin objects' own damping is 20 /s), 10 /s² for the spring.
+pub const FORCE_FIELD_SCALES: [f64; 7] = [1.0, 1.0, 1.0, 10.0, 10.0, 10.0, 10.0];
+/// The stiffest learnt axis drag (d dt) and spring (κ dt²) a substep
+/// takes: half the stability limit `PhysicsConfig::validate` enforces.
+const FORCE_FIELD_STIFFNESS_SHARE: f64 = 0.5;
 /// Below this |h| (≈ 0.006°) gravity counts as untilted: the tilt is off.
 const TILT_OFF: f64 = 1e-4;
 
@@ -333,6 +347,64 @@ pub fn write_back_damping(physics: &mut PhysicsConfig, params: &ParamSet, ceilin
             .exp()
             .clamp(MIN_PARTICLE_DAMPING, ceiling.max(MIN_PARTICLE_DAMPING));
     }
+}
+
+/// Appends the body force's group (module constants) to `params` and its
+/// gradient to `grads`: ∂L/∂θ = scale ∂L/∂parameter.
+pub fn add_force_field_group(
+    physics: &PhysicsConfig,
+    effect_grads: &EffectGrads,
+    params: ParamSet,
+    grads: ParamSet,
+) -> Result<(ParamSet, ParamSet), OptimError> {
+    let field = &physics.effects.force_field;
+    let g = &effect_grads.force_field;
+    let values = force_field_values(field);
+    let gradients = [
+        g.uniform[0],
+        g.uniform[1],
+        g.uniform[2],
+        g.axis_drag[0],
+        g.axis_drag[1],
+        g.axis_drag[2],
+        g.attractor_stiffness,
+    ];
+    Ok((
+        params.with_group(
+            FORCE_FIELD_GROUP,
+            (0..7).map(|i| values[i] / FORCE_FIELD_SCALES[i]).collect(),
+        )?,
+        grads.with_group(
+            FORCE_FIELD_GROUP,
+            (0..7)
+                .map(|i| gradients[i] * FORCE_FIELD_SCALES[i])
+                .collect(),
+        )?,
+    ))
+}
+
+/// The body force's learnt parameters in [`FORCE_FIELD_GROUP`]'s order.
+fn force_field_values(field: &dm_mpm::ForceField) -> [f64; 7] {
+    let [ux, uy, uz] = field.uniform;
+    let [dx, dy, dz] = field.axis_drag;
+    [ux, uy, uz, dx, dy, dz, field.attractor_stiffness]
+}
+
+/// Writes the stepped body force back: drags and the spring stay
+/// non-negative (a negative one would feed energy in) and within
+/// [`FORCE_FIELD_STIFFNESS_SHARE`] of the substep's stability limit.
+pub fn write_back_force_field(physics: &mut PhysicsConfig, params: &ParamSet) {
+    let Some(scaled) = params.get(FORCE_FIELD_GROUP) else {
+        return;
+    };
+    let v: Vec<f64> = (0..7).map(|i| scaled[i] * FORCE_FIELD_SCALES[i]).collect();
+    let dt = physics.dt;
+    let max_drag = FORCE_FIELD_STIFFNESS_SHARE / dt;
+    let max_spring = FORCE_FIELD_STIFFNESS_SHARE / (dt * dt);
+    let field = &mut physics.effects.force_field;
+    field.uniform = [v[0], v[1], v[2]];
+    field.axis_drag = [v[3], v[4], v[5]].map(|d| d.clamp(0.0, max_drag));
+    field.attractor_stiffness = v[6].clamp(0.0, max_spring);
 }
 
 /// [`write_back`] of the terms in `physics`.

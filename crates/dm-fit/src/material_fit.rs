@@ -79,6 +79,11 @@ pub struct MaterialFitConfig {
     /// ([`crate::learnt_effects::write_back_damping`]).
     #[serde(default)]
     pub learn_damping: bool,
+    /// Also step the grid's body force (a uniform push, drag along each
+    /// world axis and a spring towards the model's attractor point), from
+    /// wherever the model has it ([`crate::learnt_effects::FORCE_FIELD_GROUP`]).
+    #[serde(default)]
+    pub learn_force_field: bool,
     /// Where the MPM world and its adjoint run (the residual network, the
     /// losses and the optimiser stay on the CPU).
     #[serde(default)]
@@ -107,11 +112,17 @@ impl MaterialFitConfig {
                 config.group_learning_rates.insert(group.into(), rate);
             }
         }
+        let effect_rate = self.effect_learning_rate.unwrap_or(self.learning_rate);
         if self.learn_damping && !self.freeze_material {
             config.group_learning_rates.insert(
                 learnt_effects::DAMPING_GROUP.into(),
-                learnt_effects::DAMPING_RATE_FACTOR
-                    * self.effect_learning_rate.unwrap_or(self.learning_rate),
+                learnt_effects::DAMPING_RATE_FACTOR * effect_rate,
+            );
+        }
+        if self.learn_force_field && !self.freeze_material {
+            config.group_learning_rates.insert(
+                learnt_effects::FORCE_FIELD_GROUP.into(),
+                learnt_effects::FORCE_FIELD_RATE_FACTOR * effect_rate,
             );
         }
         Adam::new(config)
@@ -130,6 +141,7 @@ impl Default for MaterialFitConfig {
             freeze_material: false,
             learn_effects: true,
             learn_damping: false,
+            learn_force_field: false,
             device: Device::Cpu,
         }
     }
@@ -478,6 +490,15 @@ pub fn material_step(
         (params, all_grads) =
             learnt_effects::add_damping_group(&model.physics, &grads.effects, params, all_grads)?;
     }
+    let learn_force_field = config.learn_force_field && !config.freeze_material;
+    if learn_force_field {
+        (params, all_grads) = learnt_effects::add_force_field_group(
+            &model.physics,
+            &grads.effects,
+            params,
+            all_grads,
+        )?;
+    }
     clip_physics_gradients(&mut all_grads, &ClipConfig::default())?;
     let (youngs, poisson) = model.material_medians();
     if let (Some(residual_grads), Some(state)) = (grads.residual, model.residual.as_ref()) {
@@ -513,6 +534,9 @@ pub fn material_step(
             &params,
             dm_model::default_particle_damping(bundle.meta.category),
         );
+    }
+    if learn_force_field {
+        learnt_effects::write_back_force_field(&mut model.physics, &params);
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

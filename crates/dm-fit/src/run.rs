@@ -316,6 +316,7 @@ pub(crate) fn material_config(
         learn_effects: !options.freeze_effects,
         learn_damping: options.damping == ParticleDamping::Learnt
             && matches!(stage, Stage::Material2 | Stage::Rgb),
+        learn_force_field: false,
         device: options.device,
     }
 }

@@ -23,8 +23,8 @@ pub(crate) fn node_velocity<T: Real>(
     }
     let v = Vec3::new(lanes[0], lanes[1], lanes[2]) / m;
     let mut accel = k.gravity;
-    if let Some(field) = &k.force_field {
-        accel += field.accel(&node_position(k, idx), &v);
+    if k.force_field_on {
+        accel += k.force_field.accel(&node_position(k, idx), &v);
     }
     Some((v + accel * k.dt) * k.grid_damping)
 }

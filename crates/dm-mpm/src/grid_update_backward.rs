@@ -48,7 +48,7 @@ pub struct GridParameterGrads<T: Real> {
     pub gravity: Vec3<T>,
     /// Adjoint of the floor's Coulomb friction μ (zero when μ = 0).
     pub friction: T,
-    /// Adjoints of the body force's parameters (zero without one).
+    /// Adjoints of the body force's parameters (also where it is zero).
     pub force_field: ForceFieldGrads<T>,
 }
 
@@ -72,8 +72,9 @@ impl<T: Real> Default for ForceFieldGrads<T> {
     }
 }
 
-/// One slab's sums over its nodes with mass: Σ ū_pre (gravity), and with
-/// a body force Σ ū_pre ∘ w and Σ ū_pre · (x − p) (see the module docs).
+/// One slab's sums over its nodes with mass: Σ ū_pre (gravity), Σ ū_pre ∘
+/// w and Σ ū_pre · (x − p) (the body force's, also when it is zero, so a
+/// fit can learn it from there; see the module docs).
 #[derive(Clone, Copy)]
 struct SlabSums<T: Real> {
     gravity: Vec3<T>,
@@ -94,10 +95,8 @@ impl<T: Real> SlabSums<T> {
     #[inline(always)]
     fn add(&mut self, k: &Consts<T>, idx: [usize; 3], momentum: Vec3<T>, m: T, gu: Vec3<T>) {
         self.gravity += gu;
-        if let Some(field) = &k.force_field {
-            self.along_velocity += gu.component_mul(&(momentum / m));
-            self.along_offset += gu.dot(&(node_position(k, idx) - field.attractor_point));
-        }
+        self.along_velocity += gu.component_mul(&(momentum / m));
+        self.along_offset += gu.dot(&(node_position(k, idx) - k.force_field.attractor_point));
     }
 
     /// Scaled by dt γ, as the parameters' adjoints are.
@@ -121,14 +120,11 @@ impl<T: Real> SlabSums<T> {
             along_velocity: a.along_velocity + b.along_velocity,
             along_offset: a.along_offset + b.along_offset,
         });
-        let field = match &k.force_field {
-            Some(field) => ForceFieldGrads {
-                uniform: total.gravity,
-                axis_drag: -total.along_velocity,
-                attractor_stiffness: -total.along_offset,
-                attractor_point: total.gravity * field.attractor_stiffness,
-            },
-            None => ForceFieldGrads::default(),
+        let field = ForceFieldGrads {
+            uniform: total.gravity,
+            axis_drag: -total.along_velocity,
+            attractor_stiffness: -total.along_offset,
+            attractor_point: total.gravity * k.force_field.attractor_stiffness,
         };
         (total.gravity, field)
     }
@@ -289,8 +285,8 @@ fn velocity_adjoint<T: Real>(
     mut gu: Vec3<T>,
     extra_mass: T,
 ) -> T::Lane4 {
-    if let Some(field) = &k.force_field {
-        gu -= gu.component_mul(&field.axis_drag) * k.dt;
+    if k.force_field_on {
+        gu -= gu.component_mul(&k.force_field.axis_drag) * k.dt;
     }
     let gp = gu * (k.grid_damping / m);
     let gm = -gu.dot(&momentum) * k.grid_damping / (m * m) + extra_mass;

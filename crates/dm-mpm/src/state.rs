@@ -108,8 +108,12 @@ pub struct Consts<T> {
     pub density: T,
     /// Nodes lighter than this are empty.
     pub empty_node_mass: T,
-    /// The grid's body force; `None` when it exerts none.
-    pub force_field: Option<ForceFieldConsts<T>>,
+    /// The grid's body force (all zero without one).
+    pub force_field: ForceFieldConsts<T>,
+    /// Whether it exerts any force: the forward pass skips it otherwise,
+    /// while the backward pass always returns its parameters' adjoints
+    /// (a fit can learn it from zero).
+    pub force_field_on: bool,
 }
 
 impl<T: Real> Consts<T> {
@@ -150,15 +154,13 @@ impl<T: Real> Consts<T> {
             viscosity: T::lit(effects.viscosity),
             density: T::lit(config.density),
             empty_node_mass: T::lit(config.empty_node_mass_ratio * mean_particle_mass),
-            force_field: (!effects.force_field.is_zero()).then(|| {
-                let field = &effects.force_field;
-                ForceFieldConsts {
-                    uniform: vec3(field.uniform),
-                    axis_drag: vec3(field.axis_drag),
-                    attractor_stiffness: T::lit(field.attractor_stiffness),
-                    attractor_point: vec3(field.attractor_point),
-                }
-            }),
+            force_field: ForceFieldConsts {
+                uniform: vec3(effects.force_field.uniform),
+                axis_drag: vec3(effects.force_field.axis_drag),
+                attractor_stiffness: T::lit(effects.force_field.attractor_stiffness),
+                attractor_point: vec3(effects.force_field.attractor_point),
+            },
+            force_field_on: !effects.force_field.is_zero(),
         }
     }
 }

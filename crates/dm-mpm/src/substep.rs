@@ -107,7 +107,7 @@ pub struct SubstepGrads<T> {
     pub gravity: Vec3<T>,
     /// Adjoint of the floor's Coulomb friction μ.
     pub friction: T,
-    /// Adjoints of the grid's body force (zero without one).
+    /// Adjoints of the grid's body force (also where it is zero).
     pub force_field: ForceFieldGrads<T>,
     /// Adjoint of the per-substep particle damping factor κ = e^(−c dt).
     pub damping_factor: T,

@@ -126,7 +126,7 @@ pub struct EffectGrads {
     /// ∂L/∂c, the particle damping rate (1/s; `PhysicsConfig::particle_damping`).
     pub particle_damping: f64,
     /// ∂L/∂ of each parameter of the grid's body force, in its own units
-    /// (`Effects::force_field`; zero without one).
+    /// (`Effects::force_field`; also where it is zero).
     pub force_field: ForceField,
 }
 

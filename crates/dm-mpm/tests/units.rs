@@ -902,6 +902,26 @@ fn config_validation_names_the_bad_field() {
             "effects.plastic_yield",
             Box::new(|c| c.effects.plastic_yield = Some(0.0)),
         ),
+        (
+            "effects.force_field.uniform",
+            Box::new(|c| c.effects.force_field.uniform[1] = f64::INFINITY),
+        ),
+        (
+            "effects.force_field.axis_drag",
+            Box::new(|c| c.effects.force_field.axis_drag[2] = -1.0),
+        ),
+        (
+            "effects.force_field.axis_drag",
+            Box::new(|c| c.effects.force_field.axis_drag[0] = 2.0 / c.dt),
+        ),
+        (
+            "effects.force_field.attractor_stiffness",
+            Box::new(|c| c.effects.force_field.attractor_stiffness = 1.0 / (c.dt * c.dt)),
+        ),
+        (
+            "effects.force_field.attractor_point",
+            Box::new(|c| c.effects.force_field.attractor_point[0] = f64::NAN),
+        ),
     ];
     for (field, edit) in cases {
         let mut c = good.clone();

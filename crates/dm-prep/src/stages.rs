@@ -136,7 +136,7 @@ impl PrepOptions {
     }
 
     /// The model files `stage` reads (their stamps join its fingerprint).
-    fn model_files(&self, stage: Stage) -> Result<Vec<PathBuf>, ModelError> {
+    fn model_files(&self, stage: Stage) -> Result<Vec<PathBuf>, PrepError> {
         let ids: &[&str] = match (stage, self.segment_model, self.track_model) {
             (Stage::Segment, SegmentModel::Sam2, _) => &[sam2::ENCODER_ID, sam2::DECODER_ID],
             (Stage::Track, _, TrackModel::Cotracker3) => &[cotracker::TRACKER_ID],

@@ -10,8 +10,8 @@ creates
 
 Only numpy and the standard library are needed (PNGs are encoded here with
 zlib). Every value follows a closed formula that the Rust tests
-(crates/dm-prep/tests/) recompute, so they check the import value by value;
-change a formula here and there together. The output is deterministic.
+(crates/dm-numpy/tests/, crates/dm-phystwin/tests/) recompute, so they
+check the import value by value; change a formula here and there together. The output is deterministic.
 """
 
 import argparse

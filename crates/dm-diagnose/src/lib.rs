@@ -19,6 +19,7 @@
 
 pub mod analysis;
 pub mod candidates;
+pub mod discover;
 mod plots;
 mod report;
 pub mod signatures;
@@ -73,6 +74,18 @@ pub struct DiagnoseOptions {
     /// one fit per candidate.
     #[arg(long)]
     pub fit_candidates: bool,
+    /// Adam steps per round of the open-ended body force fitted beside
+    /// the library (0: no discovery).
+    #[arg(long, default_value_t = DEFAULT_DISCOVER_ITERS)]
+    #[serde(default = "default_discover_iters")]
+    pub discover_iters: usize,
+}
+
+/// Adam steps per thresholding round of the discovered body force.
+pub const DEFAULT_DISCOVER_ITERS: usize = 12;
+
+fn default_discover_iters() -> usize {
+    DEFAULT_DISCOVER_ITERS
 }
 
 /// Material steps of the refit with the named effect in place.
@@ -84,6 +97,7 @@ impl Default for DiagnoseOptions {
             refit_iters: DEFAULT_REFIT_ITERS,
             none_threshold: NONE_THRESHOLD,
             fit_candidates: false,
+            discover_iters: DEFAULT_DISCOVER_ITERS,
         }
     }
 }
@@ -143,6 +157,11 @@ pub struct Diagnosis {
     pub regions_test: Vec<analysis::RegionError>,
     pub truth: Option<TruthComparison>,
     pub refit: Option<RefitRecord>,
+    /// The open-ended body force fitted beside the library (`null` with
+    /// `--discover-iters 0`).
+    pub discovered: Option<discover::Discovered>,
+    /// Where the model with the discovered terms was written.
+    pub discovered_model: Option<String>,
     /// The run record: the options this diagnosis ran with.
     pub options: DiagnoseOptions,
 }
@@ -202,7 +221,7 @@ struct TrialsFile<'a> {
 
 /// Track / Chamfer of a rollout over train and test (NaN rows if it diverged).
 #[derive(Clone, Debug)]
-struct Scored {
+pub(crate) struct Scored {
     track_train: f64,
     track_test: f64,
     chamfer_test: f64,
@@ -226,7 +245,7 @@ fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout),
 
 /// A trial's errors; a diverging or unbuildable trial scores infinity
 /// (e.g. a stiffness needing more substeps than allowed).
-fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
+pub(crate) fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
     score_model(model, bundle)
         .map(|(s, _)| s)
         .unwrap_or_else(|_| Scored::failed())
@@ -502,6 +521,33 @@ pub fn diagnose(
         .as_ref()
         .map(|t| compare_truth(t, &cause, &effect_parameters, bundle.meta.fps));
 
+    // Discover: a term outside the library.
+    let (discovered, discovered_model) = if options.discover_iters > 0 {
+        let found = discover::discover(
+            &model,
+            &bundle,
+            &base,
+            options.discover_iters,
+            options.refit_iters,
+            progress,
+        )?;
+        let path = match &found.model {
+            Some(m) => {
+                let dir = out.join("discovered_model");
+                std::fs::create_dir_all(&dir).map_err(|e| DiagnoseError::Output {
+                    path: dir.clone(),
+                    problem: e.to_string(),
+                })?;
+                write_json_atomic(&dir.join("model.json"), m)?;
+                Some(dir.display().to_string())
+            }
+            None => None,
+        };
+        (Some(found.discovered), path)
+    } else {
+        (None, None)
+    };
+
     let diagnosis = Diagnosis {
         cause,
         confidence,
@@ -517,6 +563,8 @@ pub fn diagnose(
         regions_test,
         truth: truth_cmp,
         refit,
+        discovered,
+        discovered_model,
         options: options.clone(),
     };
     progress("plots and report", 0, 1);

@@ -2,6 +2,7 @@
 
 use crate::analysis::Rollout;
 use crate::candidates::Candidate;
+use crate::discover::Discovered;
 use crate::plots::PlotFile;
 use crate::{DiagnoseError, Diagnosis};
 use dm_bundle::{Bundle, write_file_atomic};
@@ -67,6 +68,17 @@ pub(crate) fn write_report(
             mm(d.gain.chamfer_after),
             rel(d.gain.chamfer_before, d.gain.chamfer_after),
             d.extended_model.as_deref().unwrap_or("—")
+        );
+    }
+    if let Some(found) = &d.discovered
+        && found.score >= d.threshold
+    {
+        let _ = writeln!(
+            s,
+            "**Outside the library:** a body force `{}` explains {:.0} % of the training and              {:.0} % of the held-out track error (section \"Discovered term\").\n",
+            found.formula,
+            100.0 * found.train_reduction,
+            100.0 * found.held_out_reduction
         );
     }
     if let Some(t) = &d.truth {
@@ -152,6 +164,9 @@ pub(crate) fn write_report(
             "The fitted model has no neural residual (physics only).\n"
         );
     }
+    if let Some(found) = &d.discovered {
+        write_discovered(&mut s, found, d.discovered_model.as_deref());
+    }
     if let Some(r) = &d.refit {
         let _ = writeln!(
             s,
@@ -168,4 +183,84 @@ pub(crate) fn write_report(
     let path = out.join("report.md");
     write_file_atomic(&path, |tmp| std::fs::write(tmp, s.as_bytes()))?;
     Ok(())
+}
+
+/// The "Discovered term" section: the body force fitted beside the
+/// library, its terms with their standard deviations and its gains.
+fn write_discovered(s: &mut String, found: &Discovered, model: Option<&str>) {
+    let _ = writeln!(
+        s,
+        "## Discovered term
+"
+    );
+    let _ = writeln!(
+        s,
+        "A body force on every grid node with mass (a push, a drag along each world axis, a \
+         spring towards {:?} m) fitted through the simulator on the training frames with the \
+         material held, terms under {} m/s² or under {:.0} % of the largest dropped, {} round(s) \
+         of {} steps.\n",
+        found.fitted_about_m.map(|c| (c * 1e3).round() / 1e3),
+        crate::discover::MIN_TERM_ACCEL,
+        100.0 * crate::discover::RELATIVE_TERM_ACCEL,
+        found.rounds,
+        found.iterations_per_round
+    );
+    if found.terms.is_empty() {
+        let _ = writeln!(s, "No term cleared the thresholds: nothing found.\n");
+        return;
+    }
+    let _ = writeln!(s, "`{}`\n", found.formula);
+    let _ = writeln!(s, "| term | coefficient | ± std |");
+    let _ = writeln!(s, "|---|---|---|");
+    for t in &found.terms {
+        let std = t.std.map_or("—".into(), |v| format!("{v:.3} {}", t.unit));
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} {} | {} |",
+            t.name, t.coefficient, t.unit, std
+        );
+    }
+    let _ = writeln!(s);
+    if let Some(f) = &found.force {
+        let _ = writeln!(
+            s,
+            "As a force field: {:.3} m/s² towards ({:.2}, {:.2}, {:.2}){}.\n",
+            f.magnitude_m_s2,
+            f.direction[0],
+            f.direction[1],
+            f.direction[2],
+            match (f.magnitude_std_m_s2, f.direction_std_deg) {
+                (Some(m), Some(a)) => format!(" (± {m:.3} m/s², ± {a:.1}°)"),
+                _ => String::new(),
+            }
+        );
+    }
+    if let Some(spring) = &found.spring {
+        let p = spring.point_m;
+        let _ = writeln!(
+            s,
+            "As a spring: κ = {:.2} /s² towards ({:.3}, {:.3}, {:.3}) m.\n",
+            spring.stiffness_per_s2, p[0], p[1], p[2]
+        );
+    }
+    let _ = writeln!(
+        s,
+        "Held-out track {} → {} ({:+.0} %); training {:+.0} %; the material refit with the \
+         terms in place {}. Model: `{}`. Dropped: {}.\n",
+        mm(found.track_test_before),
+        mm(found.track_test_after),
+        -100.0 * found.held_out_reduction,
+        -100.0 * found.train_reduction,
+        if found.material_refit_kept {
+            "kept"
+        } else {
+            "not kept"
+        },
+        model.unwrap_or("—"),
+        if found.dropped.is_empty() {
+            "none".into()
+        } else {
+            found.dropped.join(", ")
+        }
+    );
 }

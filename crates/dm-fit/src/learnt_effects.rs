@@ -43,6 +43,7 @@ use dm_model::WorldModel;
 use dm_mpm::config::horizontal_basis;
 use dm_mpm::tape::EffectGrads;
 use dm_mpm::{Effects, PhysicsConfig};
+use serde::{Deserialize, Serialize};
 
 /// Adam's group of the learnt effect coefficients (natural logs).
 pub const EFFECTS_GROUP: &str = "effects_log";
@@ -349,62 +350,109 @@ pub fn write_back_damping(physics: &mut PhysicsConfig, params: &ParamSet, ceilin
     }
 }
 
-/// Appends the body force's group (module constants) to `params` and its
-/// gradient to `grads`: ∂L/∂θ = scale ∂L/∂parameter.
+/// Which of the body force's seven terms a fit steps, in
+/// [`ForceFieldTerms::NAMES`]' order; the others keep the model's values.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ForceFieldTerms(pub [bool; 7]);
+
+impl ForceFieldTerms {
+    pub const NONE: Self = Self([false; 7]);
+    pub const ALL: Self = Self([true; 7]);
+    /// The terms: the push along each world axis, the drag along each,
+    /// the spring towards the attractor point.
+    pub const NAMES: [&'static str; 7] = [
+        "push_x", "push_y", "push_z", "drag_x", "drag_y", "drag_z", "spring",
+    ];
+    /// Their units.
+    pub const UNITS: [&'static str; 7] = ["m/s²", "m/s²", "m/s²", "1/s", "1/s", "1/s", "1/s²"];
+
+    pub fn any(self) -> bool {
+        self.0.iter().any(|&on| on)
+    }
+
+    /// Indices of the terms switched on.
+    pub fn indices(self) -> impl Iterator<Item = usize> {
+        (0..7).filter(move |&i| self.0[i])
+    }
+}
+
+/// The body force's seven terms' values, in [`ForceFieldTerms::NAMES`]'
+/// order.
+pub fn force_field_values(field: &dm_mpm::ForceField) -> [f64; 7] {
+    let [ux, uy, uz] = field.uniform;
+    let [dx, dy, dz] = field.axis_drag;
+    [ux, uy, uz, dx, dy, dz, field.attractor_stiffness]
+}
+
+/// Sets term `i` (in [`ForceFieldTerms::NAMES`]' order) of `field`.
+pub fn set_force_field_value(field: &mut dm_mpm::ForceField, i: usize, value: f64) {
+    match i {
+        0..=2 => field.uniform[i] = value,
+        3..=5 => field.axis_drag[i - 3] = value,
+        _ => field.attractor_stiffness = value,
+    }
+}
+
+/// The adjoints of the seven terms, in the same order.
+fn force_field_gradients(g: &EffectGrads) -> [f64; 7] {
+    force_field_values(&g.force_field)
+}
+
+/// Appends the switched-on body-force terms' group (each divided by its
+/// [`FORCE_FIELD_SCALES`]) to `params` and their gradients to `grads`:
+/// ∂L/∂θ = scale ∂L/∂parameter.
 pub fn add_force_field_group(
     physics: &PhysicsConfig,
     effect_grads: &EffectGrads,
+    terms: ForceFieldTerms,
     params: ParamSet,
     grads: ParamSet,
 ) -> Result<(ParamSet, ParamSet), OptimError> {
-    let field = &physics.effects.force_field;
-    let g = &effect_grads.force_field;
-    let values = force_field_values(field);
-    let gradients = [
-        g.uniform[0],
-        g.uniform[1],
-        g.uniform[2],
-        g.axis_drag[0],
-        g.axis_drag[1],
-        g.axis_drag[2],
-        g.attractor_stiffness,
-    ];
+    let values = force_field_values(&physics.effects.force_field);
+    let gradients = force_field_gradients(effect_grads);
     Ok((
         params.with_group(
             FORCE_FIELD_GROUP,
-            (0..7).map(|i| values[i] / FORCE_FIELD_SCALES[i]).collect(),
+            terms
+                .indices()
+                .map(|i| values[i] / FORCE_FIELD_SCALES[i])
+                .collect(),
         )?,
         grads.with_group(
             FORCE_FIELD_GROUP,
-            (0..7)
+            terms
+                .indices()
                 .map(|i| gradients[i] * FORCE_FIELD_SCALES[i])
                 .collect(),
         )?,
     ))
 }
 
-/// The body force's learnt parameters in [`FORCE_FIELD_GROUP`]'s order.
-fn force_field_values(field: &dm_mpm::ForceField) -> [f64; 7] {
-    let [ux, uy, uz] = field.uniform;
-    let [dx, dy, dz] = field.axis_drag;
-    [ux, uy, uz, dx, dy, dz, field.attractor_stiffness]
-}
-
-/// Writes the stepped body force back: drags and the spring stay
+/// Writes the stepped body-force terms back: drags and the spring stay
 /// non-negative (a negative one would feed energy in) and within
 /// [`FORCE_FIELD_STIFFNESS_SHARE`] of the substep's stability limit.
-pub fn write_back_force_field(physics: &mut PhysicsConfig, params: &ParamSet) {
+pub fn write_back_force_field(
+    physics: &mut PhysicsConfig,
+    params: &ParamSet,
+    terms: ForceFieldTerms,
+) {
     let Some(scaled) = params.get(FORCE_FIELD_GROUP) else {
         return;
     };
-    let v: Vec<f64> = (0..7).map(|i| scaled[i] * FORCE_FIELD_SCALES[i]).collect();
-    let dt = physics.dt;
-    let max_drag = FORCE_FIELD_STIFFNESS_SHARE / dt;
-    let max_spring = FORCE_FIELD_STIFFNESS_SHARE / (dt * dt);
+    let (drag_ceiling, spring_ceiling) = (
+        FORCE_FIELD_STIFFNESS_SHARE / physics.dt,
+        FORCE_FIELD_STIFFNESS_SHARE / (physics.dt * physics.dt),
+    );
     let field = &mut physics.effects.force_field;
-    field.uniform = [v[0], v[1], v[2]];
-    field.axis_drag = [v[3], v[4], v[5]].map(|d| d.clamp(0.0, max_drag));
-    field.attractor_stiffness = v[6].clamp(0.0, max_spring);
+    for (&theta, i) in scaled.iter().zip(terms.indices()) {
+        let value = theta * FORCE_FIELD_SCALES[i];
+        let value = match i {
+            0..=2 => value,
+            3..=5 => value.clamp(0.0, drag_ceiling),
+            _ => value.clamp(0.0, spring_ceiling),
+        };
+        set_force_field_value(field, i, value);
+    }
 }
 
 /// [`write_back`] of the terms in `physics`.

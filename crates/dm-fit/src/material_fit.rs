@@ -10,7 +10,7 @@
 //! carried from frame to frame (truncated BPTT); the per-particle
 //! material gradients go back to the patches, and Adam takes a clipped step.
 
-use crate::learnt_effects::{self, ExtensionGrads};
+use crate::learnt_effects::{self, ExtensionGrads, ForceFieldTerms};
 use crate::loss::{
     LengthPreservation, LossTerms, LossWeights, ObservedFrame, PairSelection, TrackMatch,
     frame_loss,
@@ -79,11 +79,12 @@ pub struct MaterialFitConfig {
     /// ([`crate::learnt_effects::write_back_damping`]).
     #[serde(default)]
     pub learn_damping: bool,
-    /// Also step the grid's body force (a uniform push, drag along each
-    /// world axis and a spring towards the model's attractor point), from
-    /// wherever the model has it ([`crate::learnt_effects::FORCE_FIELD_GROUP`]).
+    /// Also step these terms of the grid's body force (a uniform push,
+    /// drag along each world axis, a spring towards the model's attractor
+    /// point), from wherever the model has them
+    /// ([`crate::learnt_effects::FORCE_FIELD_GROUP`]).
     #[serde(default)]
-    pub learn_force_field: bool,
+    pub force_field_terms: ForceFieldTerms,
     /// Where the MPM world and its adjoint run (the residual network, the
     /// losses and the optimiser stay on the CPU).
     #[serde(default)]
@@ -119,7 +120,7 @@ impl MaterialFitConfig {
                 learnt_effects::DAMPING_RATE_FACTOR * effect_rate,
             );
         }
-        if self.learn_force_field && !self.freeze_material {
+        if self.force_field_terms.any() && !self.freeze_material {
             config.group_learning_rates.insert(
                 learnt_effects::FORCE_FIELD_GROUP.into(),
                 learnt_effects::FORCE_FIELD_RATE_FACTOR * effect_rate,
@@ -141,7 +142,7 @@ impl Default for MaterialFitConfig {
             freeze_material: false,
             learn_effects: true,
             learn_damping: false,
-            learn_force_field: false,
+            force_field_terms: ForceFieldTerms::NONE,
             device: Device::Cpu,
         }
     }
@@ -490,11 +491,12 @@ pub fn material_step(
         (params, all_grads) =
             learnt_effects::add_damping_group(&model.physics, &grads.effects, params, all_grads)?;
     }
-    let learn_force_field = config.learn_force_field && !config.freeze_material;
+    let learn_force_field = config.force_field_terms.any() && !config.freeze_material;
     if learn_force_field {
         (params, all_grads) = learnt_effects::add_force_field_group(
             &model.physics,
             &grads.effects,
+            config.force_field_terms,
             params,
             all_grads,
         )?;
@@ -536,7 +538,11 @@ pub fn material_step(
         );
     }
     if learn_force_field {
-        learnt_effects::write_back_force_field(&mut model.physics, &params);
+        learnt_effects::write_back_force_field(
+            &mut model.physics,
+            &params,
+            config.force_field_terms,
+        );
     }
     if let (Some(state), Some(values)) = (model.residual.as_mut(), params.get(RESIDUAL_GROUP)) {
         state.parameters.copy_from_slice(values);

@@ -316,7 +316,7 @@ pub(crate) fn material_config(
         learn_effects: !options.freeze_effects,
         learn_damping: options.damping == ParticleDamping::Learnt
             && matches!(stage, Stage::Material2 | Stage::Rgb),
-        learn_force_field: false,
+        force_field_terms: crate::learnt_effects::ForceFieldTerms::NONE,
         device: options.device,
     }
 }

@@ -1,9 +1,10 @@
 //! The grid's body force learnt through the simulator's adjoint
-//! (`MaterialFitConfig::learn_force_field`): on a scene hiding a steady
+//! (`MaterialFitConfig::force_field_terms`): on a scene hiding a steady
 //! wind (`dm-synth --effect wind`), the learnt uniform push points along
 //! the wind.
 
 use dm_bundle::Bundle;
+use dm_fit::learnt_effects::ForceFieldTerms;
 use dm_fit::material_fit::{MaterialFitConfig, fit_material};
 use dm_model::{ModelOptions, WorldModel};
 use dm_synth::{Action, Preset, SynthConfig};
@@ -29,7 +30,7 @@ fn a_hidden_wind_is_learnt_along_its_direction() {
     let mut model = WorldModel::from_bundle(&bundle, &ModelOptions::default()).expect("model");
     let fit = MaterialFitConfig {
         iterations: 12,
-        learn_force_field: true,
+        force_field_terms: ForceFieldTerms::ALL,
         ..MaterialFitConfig::default()
     };
     let mut losses = Vec::new();

@@ -18,3 +18,4 @@
 pub mod diagnosis_evaluation;
 pub mod fit_support;
 pub mod oracle;
+pub mod outside_library;

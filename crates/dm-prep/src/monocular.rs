@@ -37,23 +37,48 @@ const FLOOR_MIN_INLIER_FRACTION: f64 = 0.2;
 /// Every n-th pixel (both axes) goes into the floor fit.
 const FLOOR_PIXEL_STRIDE: usize = 2;
 
-/// How the clip becomes a capture (also the cache record of the capture).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// How the clip becomes a capture: the options of `dm-prep VIDEO` (its
+/// command line) and the cache record of the capture.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 pub struct MonocularOptions {
-    /// Horizontal field of view (degrees) when `intrinsics` is not given.
+    /// Horizontal field of view in degrees (when --intrinsics is not given).
+    #[arg(long = "fov-deg", value_name = "FOV_DEG", default_value_t = 60.0)]
     pub horizontal_fov_deg: f64,
-    /// `[fx, fy, cx, cy]` in pixels.
+    /// Pinhole intrinsics fx,fy,cx,cy in pixels.
+    #[arg(long, value_parser = parse_intrinsics)]
     pub intrinsics: Option<[f64; 4]>,
-    /// Frames per second; the video's own rate when `None`.
+    /// Frames per second (default: the video's own).
+    #[arg(long)]
     pub fps: Option<f64>,
     /// Metres per unit of the depth network's output (1 for metric models).
+    #[arg(
+        long = "depth-scale",
+        value_name = "DEPTH_SCALE",
+        default_value_t = 1.0
+    )]
     pub network_depth_scale: f64,
-    /// The camera's height above the floor (m), when known: the depth is
-    /// rescaled so that the fitted floor lies this far below the camera (the
-    /// metric anchor for depth known only up to scale).
+    /// The camera's height above the table or floor in metres: rescales the
+    /// depth so the fitted floor is this far below (for depth known only up
+    /// to scale).
+    #[arg(long)]
     pub camera_height_m: Option<f64>,
     /// Seed of the floor fit's RANSAC.
+    #[arg(skip)]
     pub seed: u64,
+}
+
+/// Pinhole intrinsics `fx,fy,cx,cy` in pixels, as the command lines give them.
+pub fn parse_intrinsics(text: &str) -> Result<[f64; 4], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match values.as_slice() {
+        &[fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && values.iter().all(|v| v.is_finite()) => {
+            Ok([fx, fy, cx, cy])
+        }
+        _ => Err("expected fx,fy,cx,cy (four finite numbers, fx and fy > 0)".into()),
+    }
 }
 
 impl Default for MonocularOptions {

@@ -111,6 +111,25 @@ pub enum TrackModel {
     Cotracker3,
 }
 
+/// Which models the segment and track stages run: part of [`PrepOptions`]
+/// and `dm-prep`'s command line.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, clap::Args)]
+pub struct StageModels {
+    /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
+    #[arg(long = "models", value_name = "MODELS")]
+    #[serde(default)]
+    pub models_dir: Option<PathBuf>,
+    /// Segmentation: GrabCut on the depth/colour model (no weights) or the
+    /// SAM 2 ONNX models, prompted with that model's frame-0 box.
+    #[arg(long, value_enum, default_value_t = SegmentModel::Grabcut)]
+    #[serde(default)]
+    pub segment_model: SegmentModel,
+    /// 2D tracking: Lucas-Kanade (no weights) or the CoTracker3 ONNX model.
+    #[arg(long, value_enum, default_value_t = TrackModel::LucasKanade)]
+    #[serde(default)]
+    pub track_model: TrackModel,
+}
+
 /// Every setting of the capture stages (part of each stage's fingerprint).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PrepOptions {
@@ -120,24 +139,21 @@ pub struct PrepOptions {
     pub fill: FillOptions,
     /// Object category; inferred from the first-frame points when `None`.
     pub category: Option<Category>,
-    #[serde(default)]
-    pub segment_model: SegmentModel,
-    #[serde(default)]
-    pub track_model: TrackModel,
-    /// Directory of the ONNX model files (default: `$DM_MODELS_DIR`, else
-    /// `./models`); read only by the ONNX choices above.
-    #[serde(default)]
-    pub models_dir: Option<PathBuf>,
+    #[serde(flatten)]
+    pub models: StageModels,
 }
 
 impl PrepOptions {
     pub fn models_dir(&self) -> PathBuf {
-        self.models_dir.clone().unwrap_or_else(default_models_dir)
+        self.models
+            .models_dir
+            .clone()
+            .unwrap_or_else(default_models_dir)
     }
 
     /// The model files `stage` reads (their stamps join its fingerprint).
     fn model_files(&self, stage: Stage) -> Result<Vec<PathBuf>, PrepError> {
-        let ids: &[&str] = match (stage, self.segment_model, self.track_model) {
+        let ids: &[&str] = match (stage, self.models.segment_model, self.models.track_model) {
             (Stage::Segment, SegmentModel::Sam2, _) => &[sam2::ENCODER_ID, sam2::DECODER_ID],
             (Stage::Track, _, TrackModel::Cotracker3) => &[cotracker::TRACKER_ID],
             _ => &[],
@@ -346,10 +362,12 @@ impl Prep {
         hash.add(stage.name().as_bytes());
         let settings = match stage {
             Stage::Segment => {
-                serde_json::to_string(&(&self.options.segment, self.options.segment_model))
+                serde_json::to_string(&(&self.options.segment, self.options.models.segment_model))
             }
             Stage::Depth => Ok(String::new()),
-            Stage::Track => serde_json::to_string(&(&self.options.track, self.options.track_model)),
+            Stage::Track => {
+                serde_json::to_string(&(&self.options.track, self.options.models.track_model))
+            }
             Stage::Lift => serde_json::to_string(&self.options.lift),
             Stage::Fill => serde_json::to_string(&(&self.options.fill, self.options.category)),
         }
@@ -500,7 +518,7 @@ impl Prep {
         let frames = self.capture.frame_count();
         let total = frames * self.cameras.len();
         // One intra-op thread: masks independent of the core count.
-        let mut sam = match self.options.segment_model {
+        let mut sam = match self.options.models.segment_model {
             SegmentModel::Grabcut => None,
             SegmentModel::Sam2 => Some(Segmenter::load(
                 &Manifest::builtin()?,
@@ -612,7 +630,7 @@ impl Prep {
 
     fn track(&self, out: &Path, progress: Progress<'_>) -> Result<(), PrepError> {
         let count = self.cameras.len();
-        let mut tracker = match self.options.track_model {
+        let mut tracker = match self.options.models.track_model {
             TrackModel::LucasKanade => None,
             TrackModel::Cotracker3 => Some(PointTracker::load(
                 &Manifest::builtin()?,
@@ -899,14 +917,14 @@ impl Prep {
             created_unix_s: 0,
             notes: format!(
                 "{}; {}; depth from the capture; stages {}",
-                match self.options.segment_model {
+                match self.options.models.segment_model {
                     SegmentModel::Grabcut => "masks: depth/colour model + GrabCut".to_owned(),
                     SegmentModel::Sam2 => format!(
                         "masks: SAM 2 (ONNX, {}) prompted by the depth/colour model",
                         self.options.models_dir().display()
                     ),
                 },
-                match self.options.track_model {
+                match self.options.models.track_model {
                     TrackModel::LucasKanade =>
                         "tracks: Lucas-Kanade, forward-backward check, frame-0 anchoring".to_owned(),
                     TrackModel::Cotracker3 => format!(

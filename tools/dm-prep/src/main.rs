@@ -16,9 +16,11 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dm_phystwin::{DEFAULT_CONTROLLER_LABEL, ImportOptions, MaskSource, import_phystwin};
-use dm_prep::monocular::{ClipCapture, ClipSource, MonocularOptions, prepare_clip_capture};
+use dm_prep::monocular::{
+    ClipCapture, ClipSource, MonocularOptions, parse_intrinsics, prepare_clip_capture,
+};
 use dm_prep::score::{ScoreFrame, score_tracks_in};
-use dm_prep::stages::{Prep, PrepOptions, SegmentModel, Stage, StageOutcome, TrackModel};
+use dm_prep::stages::{Prep, PrepOptions, Stage, StageModels, StageOutcome};
 use dm_prep_models::{Manifest, VerifyStatus, default_models_dir, verify_dir};
 use dm_shape_prior::{FitOptions, Intrinsics, Mesh, PnpOptions, fit_prior};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -51,24 +53,9 @@ struct VideoArgs {
     #[arg(long)]
     depth: Option<PathBuf>,
     #[command(flatten)]
-    models: ModelArgs,
-    /// Horizontal field of view in degrees (when --intrinsics is not given).
-    #[arg(long, default_value_t = 60.0)]
-    fov_deg: f64,
-    /// Pinhole intrinsics fx,fy,cx,cy in pixels.
-    #[arg(long, value_parser = parse_intrinsics)]
-    intrinsics: Option<[f64; 4]>,
-    /// Frames per second (default: the video's own).
-    #[arg(long)]
-    fps: Option<f64>,
-    /// Metres per unit of the depth network's output (1 for metric models).
-    #[arg(long, default_value_t = 1.0)]
-    depth_scale: f64,
-    /// The camera's height above the table or floor in metres: rescales the
-    /// depth so the fitted floor is this far below (for depth known only up
-    /// to scale).
-    #[arg(long)]
-    camera_height_m: Option<f64>,
+    models: StageModels,
+    #[command(flatten)]
+    monocular: MonocularOptions,
     /// Object category (default: inferred from the first-frame points).
     #[arg(long, value_enum)]
     category: Option<CategoryArg>,
@@ -125,21 +112,6 @@ enum ModelsCommand {
     },
 }
 
-/// Which models the segment and track stages run.
-#[derive(Args, Debug, Clone)]
-struct ModelArgs {
-    /// Directory of the ONNX model files ($DM_MODELS_DIR, else ./models).
-    #[arg(long)]
-    models: Option<PathBuf>,
-    /// Segmentation: GrabCut on the depth/colour model (no weights) or the
-    /// SAM 2 ONNX models, prompted with that model's frame-0 box.
-    #[arg(long, value_enum, default_value_t = SegmentModel::Grabcut)]
-    segment_model: SegmentModel,
-    /// 2D tracking: Lucas-Kanade (no weights) or the CoTracker3 ONNX model.
-    #[arg(long, value_enum, default_value_t = TrackModel::LucasKanade)]
-    track_model: TrackModel,
-}
-
 #[derive(Args, Debug)]
 struct StageArgs {
     /// The capture directory (calibration.json, <camera>/color.mp4, <camera>/depth/).
@@ -158,7 +130,7 @@ struct StageArgs {
     #[arg(long, value_parser = parse_color)]
     hand_color: Option<[f32; 3]>,
     #[command(flatten)]
-    models: ModelArgs,
+    models: StageModels,
 }
 
 #[derive(Args, Debug)]
@@ -293,9 +265,7 @@ fn prep_for(args: &StageArgs) -> Result<Prep> {
     });
     let mut options = PrepOptions {
         category: args.category.map(Into::into),
-        segment_model: args.models.segment_model,
-        track_model: args.models.track_model,
-        models_dir: args.models.models.clone(),
+        models: args.models.clone(),
         ..PrepOptions::default()
     };
     if let Some(color) = args.hand_color {
@@ -566,43 +536,36 @@ fn video_command(args: &VideoArgs) -> Result<()> {
     {
         bail!("{}: --depth: no such directory", dir.display());
     }
-    if !(args.fov_deg > 1.0 && args.fov_deg < 179.0) {
+    let options = &args.monocular;
+    if !(options.horizontal_fov_deg > 1.0 && options.horizontal_fov_deg < 179.0) {
         bail!(
             "--fov-deg {}: must be between 1 and 179 degrees",
-            args.fov_deg
+            options.horizontal_fov_deg
         );
     }
-    if !(args.depth_scale.is_finite() && args.depth_scale > 0.0) {
+    if !(options.network_depth_scale.is_finite() && options.network_depth_scale > 0.0) {
         bail!(
             "--depth-scale {}: must be a positive number",
-            args.depth_scale
+            options.network_depth_scale
         );
     }
-    if let Some(height) = args.camera_height_m
+    if let Some(height) = options.camera_height_m
         && !(height.is_finite() && height > 0.0)
     {
         bail!("--camera-height-m {height}: must be a positive number of metres");
     }
-    if let Some(fps) = args.fps
+    if let Some(fps) = options.fps
         && !(fps.is_finite() && fps > 0.0)
     {
         bail!("--fps {fps}: must be a positive number");
     }
-    let options = MonocularOptions {
-        horizontal_fov_deg: args.fov_deg,
-        intrinsics: args.intrinsics,
-        fps: args.fps,
-        network_depth_scale: args.depth_scale,
-        camera_height_m: args.camera_height_m,
-        ..MonocularOptions::default()
-    };
     let work = sibling_with_suffix(out, ".work");
     let capture = work.join("capture");
     let source = ClipSource {
         video,
         depth_frames: args.depth.as_deref(),
-        models_dir: args.models.models.as_deref(),
-        options: &options,
+        models_dir: args.models.models_dir.as_deref(),
+        options,
     };
     let bar = progress_bar()?;
     bar.set_message("depth");
@@ -639,17 +602,4 @@ fn sibling_with_suffix(path: &Path, suffix: &str) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
     name.push(suffix);
     path.with_file_name(name)
-}
-
-fn parse_intrinsics(text: &str) -> Result<[f64; 4], String> {
-    let values: Vec<f64> = text
-        .split(',')
-        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
-        .collect::<Result<_, _>>()?;
-    match values.as_slice() {
-        &[fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && values.iter().all(|v| v.is_finite()) => {
-            Ok([fx, fy, cx, cy])
-        }
-        _ => Err("expected fx,fy,cx,cy (four finite numbers, fx and fy > 0)".into()),
-    }
 }

@@ -18,8 +18,6 @@ pub mod session;
 pub use scene::{SceneView, Sprites, draw_sprites};
 #[cfg(feature = "server")]
 pub use server::{PageLimits, Playground, serve};
-#[cfg(feature = "cli")]
-pub use session::PlayArgs;
 pub use session::{MaterialControl, PlayOptions, Session, SessionState, component_sizes};
 
 use std::path::{Path, PathBuf};

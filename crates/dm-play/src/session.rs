@@ -5,6 +5,8 @@
 
 use std::time::Instant;
 
+#[cfg(feature = "cli")]
+use clap::builder::ArgPredicate;
 use dm_appearance::SplatFollower;
 use dm_model::WorldModel;
 use dm_model::device::{Device, DeviceWorld};
@@ -27,23 +29,76 @@ pub const DAMPING_RANGE: [f64; 2] = [0.0, 50.0];
 /// Fastest hand speed accepted from the page, m/s.
 pub const MAX_HAND_SPEED: f64 = 2.0;
 
-/// How the playground simulates (may be coarser than the fit).
+/// How the playground simulates (may be coarser than the fit); with the
+/// feature `cli`, also the command-line flags of the live simulation
+/// (dm-play, dm-bench play), whose defaults are
+/// [`PlayOptions::interactive`]'s, or the model's own with `--exact`.
+///
+/// `None` takes the model's value: `grid`, the model's grid and domain
+/// (otherwise a cube domain is chosen around the object for this grid);
+/// `particles`, all of them (otherwise farthest-point samples of the
+/// model's, each carrying the volume of the ones left out); `substeps`, the
+/// model's (the frame time stays the model's video frame time); `cfl`, the
+/// model's, 0.3. `exact` records that the command line asked for the
+/// model's own simulation; the other fields already hold its result.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args), command(about = None, long_about = None))]
 pub struct PlayOptions {
-    /// Grid cells per axis (`None`: the model's grid and domain; otherwise
-    /// a cube domain is chosen around the object for this grid).
+    /// Grid cells per axis of the live simulation (default: 20, coarser
+    /// than the fit so it runs in real time; see --exact).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            default_value = "20",
+            hide_default_value = true,
+            default_value_if("exact", ArgPredicate::IsPresent, None)
+        )
+    )]
     pub grid: Option<usize>,
-    /// Substeps per displayed frame before the CFL refinement (`None`: the
-    /// model's; the frame time stays the model's video frame time).
-    pub substeps: Option<usize>,
-    /// Simulate at most this many particles: farthest-point samples of the
-    /// model's, each carrying the volume of the ones left out (`None`: all).
+    /// Simulated particles (default: 1500 farthest-point samples of the model's).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            default_value = "1500",
+            hide_default_value = true,
+            default_value_if("exact", ArgPredicate::IsPresent, None)
+        )
+    )]
     pub particles: Option<usize>,
-    /// CFL number of the substep bound, dt ≤ cfl · dx / c (`None`: the
-    /// model's, 0.3).
+    /// Substeps per frame before the CFL refinement (default: 1, as few as
+    /// the CFL bound allows; with --exact the model's).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            default_value = "1",
+            hide_default_value = true,
+            default_value_if("exact", ArgPredicate::IsPresent, None)
+        )
+    )]
+    pub substeps: Option<usize>,
+    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5, as the
+    /// fit's).
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            default_value = "0.5",
+            hide_default_value = true,
+            default_value_if("exact", ArgPredicate::IsPresent, None)
+        )
+    )]
     #[serde(default)]
     pub cfl: Option<f64>,
-    /// Where the MPM world runs.
+    /// Simulate exactly as the fit did (the model's grid, domain, particles
+    /// and substeps): slower than real time on small machines.
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with_all = ["grid", "particles"]))]
+    #[serde(default)]
+    pub exact: bool,
+    /// Where the MPM world runs (cuda: the first NVIDIA GPU).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = Device::Cpu))]
     #[serde(default)]
     pub device: Device,
 }
@@ -54,6 +109,9 @@ pub const INTERACTIVE_GRID: usize = 20;
 pub const INTERACTIVE_CFL: f64 = 0.5;
 /// Particles of [`PlayOptions::interactive`].
 pub const INTERACTIVE_PARTICLES: usize = 1500;
+/// Substeps per frame of [`PlayOptions::interactive`]: as few as the CFL
+/// bound allows.
+pub const INTERACTIVE_SUBSTEPS: usize = 1;
 
 impl PlayOptions {
     /// The playground's defaults (dm-play, dm-bench play): a coarser grid,
@@ -64,75 +122,12 @@ impl PlayOptions {
     pub fn interactive() -> Self {
         Self {
             grid: Some(INTERACTIVE_GRID),
-            // As few substeps as the CFL bound allows.
-            substeps: Some(1),
             particles: Some(INTERACTIVE_PARTICLES),
+            substeps: Some(INTERACTIVE_SUBSTEPS),
             cfl: Some(INTERACTIVE_CFL),
+            exact: false,
             device: Device::Cpu,
         }
-    }
-
-    /// The options a command line asked for: `overrides` where given, the
-    /// rest from the fitted configuration (`exact`) or the interactive
-    /// defaults.
-    pub fn resolve(exact: bool, overrides: &PlayOptions) -> Self {
-        let base = if exact {
-            Self::default()
-        } else {
-            Self::interactive()
-        };
-        Self {
-            grid: overrides.grid.or(base.grid),
-            substeps: overrides.substeps.or(base.substeps),
-            particles: overrides.particles.or(base.particles),
-            cfl: overrides.cfl.or(base.cfl),
-            device: overrides.device,
-        }
-    }
-}
-
-/// The command-line flags of the live simulation (dm-play, dm-bench play).
-#[cfg(feature = "cli")]
-#[derive(clap::Args, Clone, Debug, Default, PartialEq)]
-pub struct PlayArgs {
-    /// Grid cells per axis of the live simulation (default: 20, coarser
-    /// than the fit so it runs in real time; see --exact).
-    #[arg(long)]
-    pub grid: Option<usize>,
-    /// Simulated particles (default: 1500 farthest-point samples of the model's).
-    #[arg(long)]
-    pub particles: Option<usize>,
-    /// Substeps per frame before the CFL refinement (default: 1, as few as
-    /// the CFL bound allows; with --exact the model's).
-    #[arg(long)]
-    pub substeps: Option<usize>,
-    /// CFL number of the substep bound, dt ≤ cfl·dx/c (default: 0.5, as the
-    /// fit's).
-    #[arg(long)]
-    pub cfl: Option<f64>,
-    /// Simulate exactly as the fit did (the model's grid, domain, particles
-    /// and substeps): slower than real time on small machines.
-    #[arg(long, conflicts_with_all = ["grid", "particles"])]
-    pub exact: bool,
-    /// Where the MPM world runs (cuda: the first NVIDIA GPU).
-    #[arg(long, value_enum, default_value_t = Device::Cpu)]
-    pub device: Device,
-}
-
-#[cfg(feature = "cli")]
-impl PlayArgs {
-    /// The options these flags ask for ([`PlayOptions::resolve`]).
-    pub fn options(&self) -> PlayOptions {
-        PlayOptions::resolve(
-            self.exact,
-            &PlayOptions {
-                grid: self.grid,
-                substeps: self.substeps,
-                particles: self.particles,
-                cfl: self.cfl,
-                device: self.device,
-            },
-        )
     }
 }
 
@@ -826,4 +821,51 @@ pub fn component_sizes(positions: &[[f32; 3]], link: f64, min_size: usize) -> Ve
     let mut out: Vec<usize> = sizes.into_values().filter(|&s| s >= min_size).collect();
     out.sort_unstable_by(|a, b| b.cmp(a));
     out
+}
+
+#[cfg(all(test, feature = "cli"))]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        options: PlayOptions,
+    }
+
+    fn parse(args: &[&str]) -> PlayOptions {
+        Cli::try_parse_from(std::iter::once("dm-play").chain(args.iter().copied()))
+            .expect("the flags parse")
+            .options
+    }
+
+    #[test]
+    fn the_command_line_defaults_are_the_interactive_options_or_the_models() {
+        assert_eq!(parse(&[]), PlayOptions::interactive());
+        assert_eq!(
+            parse(&["--grid", "12", "--device", "cpu"]),
+            PlayOptions {
+                grid: Some(12),
+                ..PlayOptions::interactive()
+            }
+        );
+        assert_eq!(
+            parse(&["--exact"]),
+            PlayOptions {
+                exact: true,
+                ..PlayOptions::default()
+            }
+        );
+        assert_eq!(
+            parse(&["--exact", "--substeps", "4", "--cfl", "0.3"]),
+            PlayOptions {
+                substeps: Some(4),
+                cfl: Some(0.3),
+                exact: true,
+                ..PlayOptions::default()
+            }
+        );
+        assert!(Cli::try_parse_from(["dm-play", "--exact", "--grid", "12"]).is_err());
+    }
 }

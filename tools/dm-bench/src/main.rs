@@ -118,7 +118,7 @@ enum Command {
         #[arg(long, default_value_t = 40)]
         frames: usize,
         #[command(flatten)]
-        simulation: dm_play::PlayArgs,
+        simulation: dm_play::PlayOptions,
     },
 }
 
@@ -212,10 +212,7 @@ fn main() -> Result<()> {
             model,
             frames,
             simulation,
-        } => {
-            let options = simulation.options();
-            play_bench(&model, frames, &options)?
-        }
+        } => play_bench(&model, frames, &simulation)?,
     }
     Ok(())
 }

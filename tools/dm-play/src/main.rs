@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use dm_play::{PlayArgs, Playground, open_session, serve};
+use dm_play::{PlayOptions, Playground, open_session, serve};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -22,7 +22,7 @@ struct Args {
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
     #[command(flatten)]
-    simulation: PlayArgs,
+    simulation: PlayOptions,
     /// Where recorded sessions are written as scene bundles.
     #[arg(long, default_value = "dm-play-recordings")]
     record_dir: PathBuf,
@@ -31,8 +31,7 @@ struct Args {
 #[tokio::main]
 async fn main() -> Result<()> {
     let args = Args::parse();
-    let options = args.simulation.options();
-    let session = open_session(&args.model_dir, &options)
+    let session = open_session(&args.model_dir, &args.simulation)
         .with_context(|| format!("opening the model in {}", args.model_dir.display()))?;
     let state = session.state();
     let sprites = session.sprites();

@@ -1,7 +1,9 @@
-//! The whole fit of one scene (method.md §7, stages 1–2): material with
-//! default actuator gains, CMA-ES selection of the gains warm-started from
-//! stage 1, material again with the selected gains. Every iteration ends
-//! with a checkpoint, so an interrupted fit resumes where it stopped.
+//! The whole fit of one scene (method.md §7): stage 1, material with
+//! default actuator gains; CMA-ES selection of the gains warm-started from
+//! stage 1; stage 2, material again with the selected gains; the residual
+//! network's own stage and the residual check; stage 3 against the images;
+//! the report. Each stage is a method of `FitRun`; every step ends with a
+//! checkpoint, so an interrupted fit resumes where it stopped.
 
 use crate::identifiability::{
     DEFAULT_TRACK_NOISE_MM, DEFAULT_TRACK_OFFSET_MM, TrackNoise, identifiability_at,
@@ -438,6 +440,11 @@ pub fn run_fit_from(
     fit_stages(bundle, options, out, false, None, Some(initial), progress)
 }
 
+/// The stages of one fit, from `initial` (else the bundle's default model)
+/// or, with `resume`, from the checkpoint in `out`; pauses after
+/// `stop_after` checkpointed steps. Each step is one method of [`FitRun`];
+/// the [`Checkpoint`] carries everything that flows from one step to the
+/// next and is written after each.
 pub(crate) fn fit_stages(
     bundle: &Bundle,
     options: &FitOptions,
@@ -448,32 +455,93 @@ pub(crate) fn fit_stages(
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
     options.validate_track_noise()?;
-    let checks_residual = options.residual_min_gain > 0.0;
-    // The physics-only fit of the check starts where this one does.
-    let check_start = initial.as_ref().filter(|_| checks_residual).cloned();
+    let mut run = FitRun {
+        bundle,
+        options,
+        out,
+        resume,
+        // The physics-only fit of the check starts where this one does.
+        check_start: initial
+            .as_ref()
+            .filter(|_| run_checks_residual(options))
+            .cloned(),
+        progress,
+    };
+    let mut state = run.start(initial)?;
+    // Only once the options and the bundle have given a model: a refused run
+    // leaves no empty output directory behind.
+    std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     let checkpoint_path = out.join(CHECKPOINT_FILE);
-    let mut state = if resume && checkpoint_path.is_file() {
-        let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
-        if saved.options != *options {
-            return Err(FitError::InvalidOption {
-                option: "--resume".into(),
-                problem: format!(
-                    "{} was written with different options",
-                    checkpoint_path.display()
-                ),
+    let mut steps = 0;
+    while state.stage != Stage::Done {
+        if stop_after.is_some_and(|n| steps >= n) {
+            return Ok(FitOutcome::Paused {
+                stage: state.stage,
+                iteration: state.iteration,
             });
         }
-        progress(&format!(
-            "resuming at {:?}, iteration {}",
-            saved.stage, saved.iteration
-        ));
-        saved
-    } else {
+        steps += 1;
+        let clock = std::time::Instant::now();
+        run.step(&mut state)?;
+        state.seconds += clock.elapsed().as_secs_f64();
+        write_json_atomic(&checkpoint_path, &state)?;
+    }
+    let report = run.final_report(&state)?;
+    run.write_outputs(&state, &report)?;
+    Ok(FitOutcome::Finished(Box::new(report)))
+}
+
+/// Whether the residual check (`--residual-min-gain`) runs at the end of
+/// the dynamics stages.
+fn run_checks_residual(options: &FitOptions) -> bool {
+    options.residual_min_gain > 0.0
+}
+
+/// What every stage of one fit reads and none changes: the scene, the
+/// options, the model directory and the progress lines. What the stages
+/// change is the [`Checkpoint`] passed to each.
+struct FitRun<'a> {
+    bundle: &'a Bundle,
+    options: &'a FitOptions,
+    out: &'a Path,
+    /// Whether the residual check's own fit resumes from its checkpoint.
+    resume: bool,
+    /// Where the residual check's physics-only fit starts when the fit
+    /// itself started from a given model ([`run_fit_from`]); else from the
+    /// bundle's default model without a network.
+    check_start: Option<WorldModel>,
+    progress: &'a mut dyn FnMut(&str),
+}
+
+impl FitRun<'_> {
+    /// The saved checkpoint with `resume` (refused when written with other
+    /// options), else stage 1's start from `initial` or the bundle's
+    /// default model.
+    fn start(&mut self, initial: Option<WorldModel>) -> Result<Checkpoint, FitError> {
+        let options = self.options;
+        let checkpoint_path = self.out.join(CHECKPOINT_FILE);
+        if self.resume && checkpoint_path.is_file() {
+            let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
+            if saved.options != *options {
+                return Err(FitError::InvalidOption {
+                    option: "--resume".into(),
+                    problem: format!(
+                        "{} was written with different options",
+                        checkpoint_path.display()
+                    ),
+                });
+            }
+            (self.progress)(&format!(
+                "resuming at {:?}, iteration {}",
+                saved.stage, saved.iteration
+            ));
+            return Ok(saved);
+        }
         let model = match initial {
             Some(model) => model,
-            None => WorldModel::from_bundle(bundle, &options.model)?,
+            None => WorldModel::from_bundle(self.bundle, &options.model)?,
         };
-        Checkpoint {
+        Ok(Checkpoint {
             options: options.clone(),
             stage: Stage::Material1,
             iteration: 0,
@@ -484,21 +552,13 @@ pub(crate) fn fit_stages(
             seconds: 0.0,
             kept_residual: None,
             residual_check: None,
-        }
-    };
-    // Only once the options and the bundle have given a model: a refused run
-    // leaves no empty output directory behind.
-    std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
-    let mut steps = 0;
-    loop {
-        if stop_after.is_some_and(|n| steps >= n) && state.stage != Stage::Done {
-            return Ok(FitOutcome::Paused {
-                stage: state.stage,
-                iteration: state.iteration,
-            });
-        }
-        steps += 1;
-        let clock = std::time::Instant::now();
+        })
+    }
+
+    /// One checkpointed step: a gradient step of the current stage, or the
+    /// move to the next stage once it has run all of its steps.
+    fn step(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
+        let options = self.options;
         match state.stage {
             Stage::Material1 | Stage::Material2 | Stage::Residual => {
                 let total = match state.stage {
@@ -508,247 +568,295 @@ pub(crate) fn fit_stages(
                     _ => 0,
                 };
                 if state.iteration < total {
-                    let config = MaterialFitConfig {
-                        freeze_material: state.stage == Stage::Residual,
-                        ..material_config(options, total, state.stage)
-                    };
-                    let index = state.history.len();
-                    let keeping = state.stage == Stage::Residual
-                        && options.residual_keep == ResidualKeep::LateFrames;
-                    let weights_before = keeping
-                        .then(|| state.model.residual.as_ref().map(|r| r.parameters.clone()))
-                        .flatten();
-                    let report = material_step(
-                        &mut state.model,
-                        bundle,
-                        &config,
-                        &mut state.adam,
-                        index,
-                        None,
-                    )?;
-                    if keeping {
-                        keep_if_better(
-                            &mut state.kept_residual,
-                            state.iteration,
-                            report.late_loss,
-                            weights_before,
-                        );
-                    }
-                    progress(&format!(
-                        "{:?} {}/{}: loss {:.3e} m², E {:.3e} Pa, nu {:.3}",
-                        state.stage,
-                        state.iteration + 1,
-                        total,
-                        report.loss,
-                        report.youngs_median_pa,
-                        report.poisson_median
-                    ));
-                    state.history.push(report);
-                    state.iteration += 1;
+                    self.dynamics_step(state, total)
                 } else {
-                    let residual_stage_runs =
-                        options.residual_iters > 0 && state.model.residual.is_some();
-                    let previous = state.stage;
-                    if previous == Stage::Residual
-                        && let Some(message) = restore_kept_residual(&mut state, bundle, options)?
-                    {
-                        progress(&message);
-                    }
-                    state.stage = match previous {
-                        Stage::Material1 => Stage::Gains,
-                        Stage::Material2 if residual_stage_runs => Stage::Residual,
-                        _ if options.rgb_iters > 0 => Stage::Rgb,
-                        _ => Stage::Done,
-                    };
-                    // The residual stage's Adam holds the network's group
-                    // only; it starts fresh, and so does the stage after it.
-                    // (A learnt tilt has its own rate: not in the residual
-                    // stage's Adam, whose parameters hold no tilt group.)
-                    if residual_stage_runs && previous != Stage::Material1 {
-                        let config = MaterialFitConfig {
-                            freeze_material: state.stage == Stage::Residual,
-                            ..material_config(options, 0, state.stage)
-                        };
-                        state.adam = config.adam(&state.model)?;
-                    }
-                    let dynamics_done = matches!(state.stage, Stage::Rgb | Stage::Done);
-                    if dynamics_done && checks_residual && state.model.residual.is_some() {
-                        // Built as `--residual none` builds it: no network to make and strip.
-                        let start = match &check_start {
-                            Some(model) => model.clone(),
-                            None => WorldModel::from_bundle(
-                                bundle,
-                                &physics_only_options(options).model,
-                            )?,
-                        };
-                        let (check, physics_only) = check_residual(
-                            bundle,
-                            options,
-                            start,
-                            &state.model,
-                            out,
-                            resume,
-                            progress,
-                        )?;
-                        state.seconds += physics_only.seconds;
-                        if !check.kept {
-                            // Go on exactly as `--residual none` would have.
-                            state.model = physics_only.model;
-                            state.adam = physics_only.adam;
-                            state.history = physics_only.history;
-                            state.gain_search = physics_only.gain_search;
-                            state.kept_residual = None;
-                        }
-                        state.residual_check = Some(check);
-                    }
-                    state.iteration = 0;
+                    self.end_dynamics_stage(state)
                 }
             }
+            Stage::Gains => self.gain_stage(state),
+            Stage::Rgb if state.iteration < options.rgb_iters => self.rgb_step(state),
             Stage::Rgb => {
-                if state.iteration < options.rgb_iters {
-                    let (gaussians, cameras) = if state.iteration == 0 {
-                        progress("stage 3: fitting the first-frame Gaussians");
-                        let appearance_options =
-                            AppearanceOptions::for_cameras(bundle.meta.cameras.len());
-                        let (gaussians, record) =
-                            fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})?;
-                        save_appearance(out, &gaussians, &record)?;
-                        progress(&format!(
-                            "stage 3: {} Gaussians, frame-0 PSNR {:.1} dB (training cameras)",
-                            record.gaussian_count, record.mean_train_psnr_db
-                        ));
-                        (gaussians, record.train_cameras)
-                    } else {
-                        let (gaussians, record) = load_appearance(out, &state.model)?;
-                        (gaussians, record.train_cameras)
-                    };
-                    let config = material_config(options, options.rgb_iters, Stage::Rgb);
-                    let steps = fit_frames(bundle, &config).saturating_sub(1);
-                    let mut term = RgbTerm::new(
-                        bundle,
-                        gaussians,
-                        &state.model.particles,
-                        &cameras,
-                        options.rgb_weight,
-                        steps,
-                    )?;
-                    let index = state.history.len();
-                    let mut report = material_step(
-                        &mut state.model,
-                        bundle,
-                        &config,
-                        &mut state.adam,
-                        index,
-                        Some(&mut term),
-                    )?;
-                    report.rgb_l1 = Some(term.mean_l1());
-                    progress(&format!(
-                        "Rgb {}/{}: loss {:.3e}, masked L1 {:.4}, E {:.3e} Pa, nu {:.3}",
-                        state.iteration + 1,
-                        options.rgb_iters,
-                        report.loss,
-                        term.mean_l1(),
-                        report.youngs_median_pa,
-                        report.poisson_median
-                    ));
-                    state.history.push(report);
-                    state.iteration += 1;
-                } else {
-                    state.stage = Stage::Done;
-                }
+                state.stage = Stage::Done;
+                Ok(())
             }
-            Stage::Gains => {
-                if options.gain_evals > 0 && options.model.actuators != ActuatorChoice::Rigid {
-                    progress("selecting actuator gains (CMA-ES)");
-                    state.gain_search = select_gains(&mut state.model, bundle, options)?;
-                }
-                state.adam = material_config(options, 0, Stage::Material2).adam(&state.model)?;
-                state.stage = Stage::Material2;
-            }
-            Stage::Done => break,
+            Stage::Done => Ok(()),
         }
-        state.seconds += clock.elapsed().as_secs_f64();
-        write_json_atomic(&checkpoint_path, &state)?;
     }
-    let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
-    let final_loss = train_loss_on(&state.model, bundle, frames, options.device)?;
-    let (youngs, poisson) = state.model.material_medians();
-    progress("probing how sharply the clip pins E and ν");
-    let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
-    let identifiability = if options.identifiability {
-        progress("bounding how precisely the tracks determine E, ν and the gains");
-        Some(identifiability_at(
+
+    /// One step of stage 1 (material, default gains), stage 2 (material,
+    /// selected gains) or the residual stage (the network alone, the
+    /// physics frozen; with `--residual-keep late-frames` the best network
+    /// so far is remembered).
+    fn dynamics_step(&mut self, state: &mut Checkpoint, total: usize) -> Result<(), FitError> {
+        let options = self.options;
+        let config = MaterialFitConfig {
+            freeze_material: state.stage == Stage::Residual,
+            ..material_config(options, total, state.stage)
+        };
+        let index = state.history.len();
+        let keeping =
+            state.stage == Stage::Residual && options.residual_keep == ResidualKeep::LateFrames;
+        let weights_before = keeping
+            .then(|| state.model.residual.as_ref().map(|r| r.parameters.clone()))
+            .flatten();
+        let report = material_step(
+            &mut state.model,
+            self.bundle,
+            &config,
+            &mut state.adam,
+            index,
+            None,
+        )?;
+        if keeping {
+            keep_if_better(
+                &mut state.kept_residual,
+                state.iteration,
+                report.late_loss,
+                weights_before,
+            );
+        }
+        (self.progress)(&format!(
+            "{:?} {}/{}: loss {:.3e} m², E {:.3e} Pa, nu {:.3}",
+            state.stage,
+            state.iteration + 1,
+            total,
+            report.loss,
+            report.youngs_median_pa,
+            report.poisson_median
+        ));
+        state.history.push(report);
+        state.iteration += 1;
+        Ok(())
+    }
+
+    /// The end of stage 1, stage 2 or the residual stage: the kept network
+    /// put back, the next stage and its Adam, and after the last dynamics
+    /// stage the residual check.
+    fn end_dynamics_stage(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
+        let options = self.options;
+        let residual_stage_runs = options.residual_iters > 0 && state.model.residual.is_some();
+        let previous = state.stage;
+        if previous == Stage::Residual
+            && let Some(message) = restore_kept_residual(state, self.bundle, options)?
+        {
+            (self.progress)(&message);
+        }
+        state.stage = match previous {
+            Stage::Material1 => Stage::Gains,
+            Stage::Material2 if residual_stage_runs => Stage::Residual,
+            _ if options.rgb_iters > 0 => Stage::Rgb,
+            _ => Stage::Done,
+        };
+        // The residual stage's Adam holds the network's group only; it
+        // starts fresh, and so does the stage after it. (A learnt tilt has
+        // its own rate: not in the residual stage's Adam, whose parameters
+        // hold no tilt group.)
+        if residual_stage_runs && previous != Stage::Material1 {
+            let config = MaterialFitConfig {
+                freeze_material: state.stage == Stage::Residual,
+                ..material_config(options, 0, state.stage)
+            };
+            state.adam = config.adam(&state.model)?;
+        }
+        let dynamics_done = matches!(state.stage, Stage::Rgb | Stage::Done);
+        if dynamics_done && run_checks_residual(options) && state.model.residual.is_some() {
+            self.residual_check(state)?;
+        }
+        state.iteration = 0;
+        Ok(())
+    }
+
+    /// `--residual-min-gain`: the same dynamics fitted without the network
+    /// (under `out/residual_check`) and compared with this fit; below the
+    /// threshold the fit goes on from the physics-only one, exactly as
+    /// `--residual none` would have.
+    fn residual_check(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
+        // Built as `--residual none` builds it: no network to make and strip.
+        let start = match &self.check_start {
+            Some(model) => model.clone(),
+            None => {
+                WorldModel::from_bundle(self.bundle, &physics_only_options(self.options).model)?
+            }
+        };
+        let (check, physics_only) = check_residual(
+            self.bundle,
+            self.options,
+            start,
             &state.model,
-            bundle,
-            frames,
-            options.track_noise(),
-            &mut |_| {},
-        )?)
-    } else {
-        None
-    };
-    let report = FitReport {
-        material: serde_json::json!({
-            "E_median_pa": youngs,
-            "nu_median": poisson,
-            "particle_damping_per_s": state.model.physics.particle_damping,
-            "sensitivity": sensitivity,
-            "identifiability": identifiability,
-        }),
-        dca: serde_json::json!({
-            "kp": state.model.actuator.kp,
-            "kd": state.model.actuator.kd,
-            "grasp_radius_m": state.model.actuator.grasp_radius,
-            "mode": state.model.actuator.mode,
-        }),
-        loss: serde_json::json!({
-            "initial": state.history.first().map(|r| r.loss),
-            "final": final_loss,
-            "history": state.history,
-        }),
-        residual: serde_json::json!({
-            "kind": state.model.options.residual,
-            "parameters": state.model.residual.as_ref().map_or(0, |r| r.parameters.len()),
-            "check": state.residual_check,
-            "keep": options.residual_keep,
-            "kept_step": state.kept_residual.as_ref().map(|k| k.step),
-            "kept_late_loss": state.kept_residual.as_ref().map(|k| k.late_loss),
-        }),
-        seconds: state.seconds,
-        options: options.clone(),
-        frames,
-        gain_search: state.gain_search.clone(),
-    };
-    write_model(&state.model, out)?;
-    write_json_atomic(&out.join("fit_report.json"), &report)?;
-    let curve: Vec<f64> = state.history.iter().map(|r| r.loss).collect();
-    // Where stage 2, the residual stage and stage 3 start in the history.
-    let mut stage_starts = vec![options.iters, options.iters + options.stage2_iters];
-    if options.residual_iters > 0 && state.model.residual.is_some() {
-        stage_starts.push(options.iters + options.stage2_iters + options.residual_iters);
+            self.out,
+            self.resume,
+            self.progress,
+        )?;
+        state.seconds += physics_only.seconds;
+        if !check.kept {
+            state.model = physics_only.model;
+            state.adam = physics_only.adam;
+            state.history = physics_only.history;
+            state.gain_search = physics_only.gain_search;
+            state.kept_residual = None;
+        }
+        state.residual_check = Some(check);
+        Ok(())
     }
-    let late: Vec<f64> = state
-        .history
-        .iter()
-        .map(|r| r.late_loss.unwrap_or(f64::NAN))
-        .collect();
-    let residual_start = options.iters + options.stage2_iters;
-    let kept = state
-        .kept_residual
-        .as_ref()
-        .map(|k| (residual_start + k.step, k.late_loss));
-    let png = crate::plot::loss_curve(
-        &curve,
-        &late,
-        &stage_starts,
-        kept,
-        state.residual_check.as_ref(),
-    )?;
-    write_file_atomic(&out.join("loss_curve.png"), |temp| {
-        png.save_with_format(temp, image::ImageFormat::Png)
-            .map_err(|e| std::io::Error::other(e.to_string()))
-    })?;
-    Ok(FitOutcome::Finished(Box::new(report)))
+
+    /// The actuator gains (CMA-ES, when there are evaluations to spend and
+    /// the actuators are compliant), then stage 2's fresh Adam.
+    fn gain_stage(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
+        let options = self.options;
+        if options.gain_evals > 0 && options.model.actuators != ActuatorChoice::Rigid {
+            (self.progress)("selecting actuator gains (CMA-ES)");
+            state.gain_search = select_gains(&mut state.model, self.bundle, options)?;
+        }
+        state.adam = material_config(options, 0, Stage::Material2).adam(&state.model)?;
+        state.stage = Stage::Material2;
+        Ok(())
+    }
+
+    /// One step of stage 3: the material and gains against the images
+    /// through the first-frame Gaussians, which its first step fits and
+    /// saves (`gaussians.ply`, `appearance.json`) and the later ones load.
+    fn rgb_step(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
+        let (bundle, options) = (self.bundle, self.options);
+        let (gaussians, cameras) = if state.iteration == 0 {
+            (self.progress)("stage 3: fitting the first-frame Gaussians");
+            let appearance_options = AppearanceOptions::for_cameras(bundle.meta.cameras.len());
+            let (gaussians, record) =
+                fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})?;
+            save_appearance(self.out, &gaussians, &record)?;
+            (self.progress)(&format!(
+                "stage 3: {} Gaussians, frame-0 PSNR {:.1} dB (training cameras)",
+                record.gaussian_count, record.mean_train_psnr_db
+            ));
+            (gaussians, record.train_cameras)
+        } else {
+            let (gaussians, record) = load_appearance(self.out, &state.model)?;
+            (gaussians, record.train_cameras)
+        };
+        let config = material_config(options, options.rgb_iters, Stage::Rgb);
+        let steps = fit_frames(bundle, &config).saturating_sub(1);
+        let mut term = RgbTerm::new(
+            bundle,
+            gaussians,
+            &state.model.particles,
+            &cameras,
+            options.rgb_weight,
+            steps,
+        )?;
+        let index = state.history.len();
+        let mut report = material_step(
+            &mut state.model,
+            bundle,
+            &config,
+            &mut state.adam,
+            index,
+            Some(&mut term),
+        )?;
+        report.rgb_l1 = Some(term.mean_l1());
+        (self.progress)(&format!(
+            "Rgb {}/{}: loss {:.3e}, masked L1 {:.4}, E {:.3e} Pa, nu {:.3}",
+            state.iteration + 1,
+            options.rgb_iters,
+            report.loss,
+            term.mean_l1(),
+            report.youngs_median_pa,
+            report.poisson_median
+        ));
+        state.history.push(report);
+        state.iteration += 1;
+        Ok(())
+    }
+
+    /// `fit_report.json` of the finished fit: the final training loss, the
+    /// material's sensitivity probe and, with `--identifiability`, the
+    /// Cramér–Rao bounds.
+    fn final_report(&mut self, state: &Checkpoint) -> Result<FitReport, FitError> {
+        let (bundle, options) = (self.bundle, self.options);
+        let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
+        let final_loss = train_loss_on(&state.model, bundle, frames, options.device)?;
+        let (youngs, poisson) = state.model.material_medians();
+        (self.progress)("probing how sharply the clip pins E and ν");
+        let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
+        let identifiability = if options.identifiability {
+            (self.progress)("bounding how precisely the tracks determine E, ν and the gains");
+            Some(identifiability_at(
+                &state.model,
+                bundle,
+                frames,
+                options.track_noise(),
+                &mut |_| {},
+            )?)
+        } else {
+            None
+        };
+        Ok(FitReport {
+            material: serde_json::json!({
+                "E_median_pa": youngs,
+                "nu_median": poisson,
+                "particle_damping_per_s": state.model.physics.particle_damping,
+                "sensitivity": sensitivity,
+                "identifiability": identifiability,
+            }),
+            dca: serde_json::json!({
+                "kp": state.model.actuator.kp,
+                "kd": state.model.actuator.kd,
+                "grasp_radius_m": state.model.actuator.grasp_radius,
+                "mode": state.model.actuator.mode,
+            }),
+            loss: serde_json::json!({
+                "initial": state.history.first().map(|r| r.loss),
+                "final": final_loss,
+                "history": state.history,
+            }),
+            residual: serde_json::json!({
+                "kind": state.model.options.residual,
+                "parameters": state.model.residual.as_ref().map_or(0, |r| r.parameters.len()),
+                "check": state.residual_check,
+                "keep": options.residual_keep,
+                "kept_step": state.kept_residual.as_ref().map(|k| k.step),
+                "kept_late_loss": state.kept_residual.as_ref().map(|k| k.late_loss),
+            }),
+            seconds: state.seconds,
+            options: options.clone(),
+            frames,
+            gain_search: state.gain_search.clone(),
+        })
+    }
+
+    /// The model directory's files: the model, `fit_report.json` and the
+    /// loss curve with the stages' starts and the kept network marked.
+    fn write_outputs(&self, state: &Checkpoint, report: &FitReport) -> Result<(), FitError> {
+        let (options, out) = (self.options, self.out);
+        write_model(&state.model, out)?;
+        write_json_atomic(&out.join("fit_report.json"), report)?;
+        let curve: Vec<f64> = state.history.iter().map(|r| r.loss).collect();
+        // Where stage 2, the residual stage and stage 3 start in the history.
+        let mut stage_starts = vec![options.iters, options.iters + options.stage2_iters];
+        if options.residual_iters > 0 && state.model.residual.is_some() {
+            stage_starts.push(options.iters + options.stage2_iters + options.residual_iters);
+        }
+        let late: Vec<f64> = state
+            .history
+            .iter()
+            .map(|r| r.late_loss.unwrap_or(f64::NAN))
+            .collect();
+        let residual_start = options.iters + options.stage2_iters;
+        let kept = state
+            .kept_residual
+            .as_ref()
+            .map(|k| (residual_start + k.step, k.late_loss));
+        let png = crate::plot::loss_curve(
+            &curve,
+            &late,
+            &stage_starts,
+            kept,
+            state.residual_check.as_ref(),
+        )?;
+        write_file_atomic(&out.join("loss_curve.png"), |temp| {
+            png.save_with_format(temp, image::ImageFormat::Png)
+                .map_err(|e| std::io::Error::other(e.to_string()))
+        })?;
+        Ok(())
+    }
 }
 
 /// Remembers `weights` (the network before step `step` of the residual

@@ -1,22 +1,26 @@
 //! "Discover": a term outside the library. An open-ended body force on
 //! the grid (`dm_mpm::ForceField`: a push a₀ along each world axis, a drag
-//! along each, a spring κ towards the first frame's centroid c) is fitted
-//! through the simulator's adjoint on the first part of the training
-//! frames with the material held, and thinned:
+//! along each, a spring κ towards the first frame's centroid c) is found
+//! as SINDy finds a sparse model, by least squares and sequential
+//! thresholding, on the simulator's own response:
 //!
-//! 1. as SINDy's sequential thresholding thins a regression: a term whose
-//!    acceleration over the rollout is below [`MIN_TERM_ACCEL`] or below
-//!    [`RELATIVE_TERM_ACCEL`] of the largest term's is dropped and the
-//!    others refitted, until the set stops changing;
-//! 2. on the training split's last [`VALIDATION_SHARE`], which no fit
-//!    saw: each kept term, weakest first, is dropped if the track error
-//!    there is no higher without it.
+//! 1. The seven terms are regressed on the first part of the training
+//!    frames with the material held: Levenberg–Marquardt steps on the
+//!    tracks' residual, its Jacobian by central differences of rollouts
+//!    (seven columns; the tracks respond to a small force almost
+//!    linearly). Drags and the spring stay non-negative.
+//! 2. A term whose effect on the tracks (|θ_j| ‖J_j‖ / √n, metres RMS) is
+//!    below [`MIN_TERM_EFFECT_M`] or below [`RELATIVE_TERM_EFFECT`] of the
+//!    largest is dropped and the rest regressed again, until the set stops
+//!    changing.
+//! 3. On the training split's last [`VALIDATION_SHARE`], which no
+//!    regression saw, each kept term, weakest first, is dropped if the
+//!    track error there is no higher without it.
 //!
-//! The terms kept are refitted on the whole training split, the material
-//! refitted with them learnt beside it, the terms reported in closed form
-//! with a Gauss–Newton standard deviation (central-difference Jacobians of
-//! the training tracks), and the extended model measured on the test
-//! split, which no choice used.
+//! The kept terms are regressed on the whole training split, then learnt
+//! through the adjoint with the material (`dm_fit`'s body-force group),
+//! reported in closed form with Gauss–Newton standard deviations, and the
+//! extended model is measured on the test split, which no choice used.
 
 use crate::analysis::{match_tracks, rollout};
 use crate::{DiagnoseError, Progress, Scored, score_trial};
@@ -28,14 +32,15 @@ use dm_fit::material_fit::{MaterialFitConfig, fit_material};
 use dm_model::WorldModel;
 use serde::Serialize;
 
-/// A term is dropped when its RMS acceleration over the training rollout
-/// is below this (m/s²): over a 1.2 s clip an unopposed 0.1 m/s² moves a
-/// free body by 7 cm, a held one by a few millimetres.
-pub const MIN_TERM_ACCEL: f64 = 0.1;
-/// … or below this share of the largest term's.
-pub const RELATIVE_TERM_ACCEL: f64 = 0.25;
-/// Thresholding rounds at most (each a fit of the remaining terms).
-pub const MAX_ROUNDS: usize = 3;
+/// A term is dropped when it moves the tracks by less than this (m, RMS
+/// over the fitted frames): a third of the trackers' noise.
+pub const MIN_TERM_EFFECT_M: f64 = 0.001;
+/// … or by less than this share of the largest term's effect.
+pub const RELATIVE_TERM_EFFECT: f64 = 0.2;
+/// Thresholding rounds at most (each a regression of the remaining terms).
+pub const MAX_ROUNDS: usize = 4;
+/// Levenberg–Marquardt steps per regression at most.
+pub const MAX_LM_STEPS: usize = 4;
 /// The share of the training frames held out of the thresholding fits to
 /// validate each term (at least two frames).
 pub const VALIDATION_SHARE: f64 = 0.25;
@@ -87,8 +92,10 @@ pub struct Discovered {
     /// The point the spring term was fitted about (the first frame's
     /// particle centroid), metres.
     pub fitted_about_m: [f64; 3],
+    /// Thresholding rounds (each a regression of the remaining terms).
     pub rounds: usize,
-    pub iterations_per_round: usize,
+    /// Adam steps learning the kept terms with the material.
+    pub adjoint_iterations: usize,
     /// Relative reductions of the track error against the fitted model
     /// (train: what the terms were fitted on; held out: the test split).
     pub train_reduction: f64,
@@ -97,53 +104,142 @@ pub struct Discovered {
     pub score: f64,
     pub track_test_before: f64,
     pub track_test_after: f64,
-    /// Whether the material refit with the terms in place was kept (it is
-    /// dropped when it raises the training track error).
+    /// Whether the adjoint steps learning the terms with the material were
+    /// kept (they are dropped when they raise the training track error).
     pub material_refit_kept: bool,
 }
 
-/// RMS acceleration of each of the seven terms at `field`'s values over
-/// the training frames of `model`'s rollout.
-fn term_accelerations(
-    model: &WorldModel,
-    bundle: &Bundle,
-    about: [f64; 3],
-) -> Result<[f64; 7], DiagnoseError> {
-    let run = rollout(model, bundle)?;
-    let frames = bundle.meta.split.train[1].min(run.positions.len());
-    let fps = bundle.meta.fps;
-    let (mut v2, mut r2, mut count) = ([0.0; 3], 0.0, 0usize);
-    for t in 0..frames.saturating_sub(1) {
-        for (a, b) in run.positions[t].iter().zip(&run.positions[t + 1]) {
-            for c in 0..3 {
-                let v = (f64::from(b[c]) - f64::from(a[c])) * fps;
-                v2[c] += v * v;
-                r2 += (f64::from(a[c]) - about[c]).powi(2);
-            }
-            count += 1;
-        }
-    }
-    let n = count.max(1) as f64;
-    let values = force_field_values(&model.physics.effects.force_field);
-    let rms_v = v2.map(|s| (s / n).sqrt());
-    let rms_r = (r2 / n).sqrt();
-    Ok(std::array::from_fn(|i| match i {
-        0..=2 => values[i].abs(),
-        3..=5 => values[i].abs() * rms_v[i - 3],
-        _ => values[i].abs() * rms_r,
-    }))
+/// Central-difference step of each term, in its own units.
+fn jacobian_step(i: usize) -> f64 {
+    0.05 * FORCE_FIELD_SCALES[i]
 }
 
-/// The terms whose acceleration clears both thresholds.
-fn kept_terms(accelerations: &[f64; 7], terms: ForceFieldTerms) -> ForceFieldTerms {
-    let largest = terms
-        .indices()
-        .map(|i| accelerations[i])
-        .fold(0.0, f64::max);
-    let floor = MIN_TERM_ACCEL.max(RELATIVE_TERM_ACCEL * largest);
-    ForceFieldTerms(std::array::from_fn(|i| {
-        terms.0[i] && accelerations[i] >= floor
-    }))
+/// The tracks' residual (simulated − observed) over frames `[0, frames)`
+/// and, per term in `terms`, its column of the Jacobian (one-sided where a
+/// drag or the spring sits at 0).
+fn residual_and_jacobian(
+    model: &WorldModel,
+    bundle: &Bundle,
+    terms: ForceFieldTerms,
+    frames: usize,
+) -> Result<(Vec<f64>, Vec<Vec<f64>>), DiagnoseError> {
+    let (at, observed) = tracks(model, bundle, frames)?;
+    let residual: Vec<f64> = at.iter().zip(&observed).map(|(s, o)| s - o).collect();
+    let values = force_field_values(&model.physics.effects.force_field);
+    let mut columns = Vec::new();
+    for i in terms.indices() {
+        let step = jacobian_step(i);
+        let value = values[i];
+        let shifted = |v: f64| {
+            let mut m = model.clone();
+            set_force_field_value(&mut m.physics.effects.force_field, i, v);
+            tracks(&m, bundle, frames).map(|t| t.0)
+        };
+        let (lo, hi) = if i >= 3 && value < step {
+            (value, value + step)
+        } else {
+            (value - step, value + step)
+        };
+        let (minus, plus) = if lo == value {
+            (at.clone(), shifted(hi)?)
+        } else {
+            (shifted(lo)?, shifted(hi)?)
+        };
+        if plus.len() != at.len() || minus.len() != at.len() {
+            return Err(DiagnoseError::Input {
+                path: bundle.root.clone(),
+                problem: "a perturbed rollout matched a different set of tracks".into(),
+            });
+        }
+        columns.push(
+            plus.iter()
+                .zip(&minus)
+                .map(|(p, m)| (p - m) / (hi - lo))
+                .collect(),
+        );
+    }
+    Ok((residual, columns))
+}
+
+fn squared(values: &[f64]) -> f64 {
+    values.iter().map(|v| v * v).sum()
+}
+
+/// Levenberg–Marquardt on `terms` of `model`'s body force over frames
+/// `[0, frames)`; returns each term's effect on the tracks (m RMS,
+/// |θ_j| ‖J_j‖ / √n; 0 for terms not in `terms`).
+fn regress(
+    model: &mut WorldModel,
+    bundle: &Bundle,
+    terms: ForceFieldTerms,
+    frames: usize,
+    progress: &mut dyn FnMut(usize),
+) -> Result<[f64; 7], DiagnoseError> {
+    let kept: Vec<usize> = terms.indices().collect();
+    let mut damping = 1e-3;
+    let mut effects = [0.0; 7];
+    for step in 0..MAX_LM_STEPS {
+        progress(step);
+        let (residual, columns) = residual_and_jacobian(model, bundle, terms, frames)?;
+        let n = residual.len().max(1) as f64;
+        let values = force_field_values(&model.physics.effects.force_field);
+        for (j, &i) in kept.iter().enumerate() {
+            effects[i] = values[i].abs() * squared(&columns[j]).sqrt() / n.sqrt();
+        }
+        let k = kept.len();
+        let jtj = nalgebra::DMatrix::from_fn(k, k, |a, b| {
+            columns[a]
+                .iter()
+                .zip(&columns[b])
+                .map(|(x, y)| x * y)
+                .sum::<f64>()
+        });
+        let jtr = nalgebra::DVector::from_fn(k, |a, _| {
+            columns[a]
+                .iter()
+                .zip(&residual)
+                .map(|(x, r)| x * r)
+                .sum::<f64>()
+        });
+        let before = squared(&residual);
+        let mut improved = false;
+        for _ in 0..4 {
+            let mut lhs = jtj.clone();
+            for d in 0..k {
+                lhs[(d, d)] += damping * jtj[(d, d)].max(1e-12);
+            }
+            let Some(delta) = lhs.lu().solve(&(-&jtr)) else {
+                damping *= 10.0;
+                continue;
+            };
+            let mut trial = model.clone();
+            for (j, &i) in kept.iter().enumerate() {
+                let v = values[i] + delta[j];
+                let v = if i >= 3 { v.max(0.0) } else { v };
+                set_force_field_value(&mut trial.physics.effects.force_field, i, v);
+            }
+            let (at, observed) = tracks(&trial, bundle, frames)?;
+            let after: f64 = at.iter().zip(&observed).map(|(s, o)| (s - o).powi(2)).sum();
+            if after < before {
+                *model = trial;
+                damping = (damping / 10.0).max(1e-6);
+                improved = (before - after) > 1e-3 * before;
+                break;
+            }
+            damping *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok(effects)
+}
+
+/// The terms whose effect on the tracks clears both thresholds.
+fn kept_terms(effects: &[f64; 7], terms: ForceFieldTerms) -> ForceFieldTerms {
+    let largest = terms.indices().map(|i| effects[i]).fold(0.0, f64::max);
+    let floor = MIN_TERM_EFFECT_M.max(RELATIVE_TERM_EFFECT * largest);
+    ForceFieldTerms(std::array::from_fn(|i| terms.0[i] && effects[i] >= floor))
 }
 
 fn fit_config(
@@ -163,15 +259,17 @@ fn fit_config(
     }
 }
 
-/// Training-frame track positions of `model`'s rollout, flattened over the
-/// tracks `valid` at each frame, and the matching observations.
-fn training_tracks(
+/// Track positions of `model`'s rollout over frames `[0, frames)`,
+/// flattened over the tracks valid at each frame, and the matching
+/// observations.
+fn tracks(
     model: &WorldModel,
     bundle: &Bundle,
+    frames: usize,
 ) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
     let run = rollout(model, bundle)?;
     let matched = match_tracks(bundle, &run.positions);
-    let frames = bundle.meta.split.train[1].min(matched.observed.len());
+    let frames = frames.min(matched.observed.len());
     let (mut simulated, mut observed) = (Vec::new(), Vec::new());
     for t in 0..frames {
         for (o, s) in matched.observed[t].iter().zip(&matched.simulated[t]) {
@@ -184,51 +282,21 @@ fn training_tracks(
     Ok((simulated, observed))
 }
 
-/// Gauss–Newton covariance of the kept terms at `model`'s values:
-/// σ² (JᵀJ)⁻¹ with J from central differences of the training tracks and
-/// σ² the residual's mean square. `None` where JᵀJ is singular.
+/// Gauss–Newton covariance of the kept terms at `model`'s values over
+/// the training frames: σ² (JᵀJ)⁻¹ with σ² the residual's mean square.
+/// `None` where JᵀJ is singular.
 fn covariance(
     model: &WorldModel,
     bundle: &Bundle,
     terms: ForceFieldTerms,
-    progress: Progress<'_>,
 ) -> Result<Option<nalgebra::DMatrix<f64>>, DiagnoseError> {
-    let kept: Vec<usize> = terms.indices().collect();
-    let (at, observed) = training_tracks(model, bundle)?;
-    let mut columns = Vec::with_capacity(kept.len());
-    for (j, &i) in kept.iter().enumerate() {
-        progress("uncertainty of the discovered terms", j, kept.len());
-        let step = 0.05 * FORCE_FIELD_SCALES[i];
-        let value = force_field_values(&model.physics.effects.force_field)[i];
-        let shifted = |sign: f64| {
-            let mut m = model.clone();
-            // Drags and the spring stay non-negative: step one-sided at 0.
-            let v = if i >= 3 {
-                (value + sign * step).max(0.0)
-            } else {
-                value + sign * step
-            };
-            set_force_field_value(&mut m.physics.effects.force_field, i, v);
-            Ok::<_, DiagnoseError>((training_tracks(&m, bundle)?.0, v))
-        };
-        let ((plus, v_plus), (minus, v_minus)) = (shifted(1.0)?, shifted(-1.0)?);
-        let width = v_plus - v_minus;
-        if plus.len() != at.len() || minus.len() != at.len() || width <= 0.0 {
-            return Ok(None);
-        }
-        columns.push(
-            plus.iter()
-                .zip(&minus)
-                .map(|(p, m)| (p - m) / width)
-                .collect::<Vec<f64>>(),
-        );
-    }
-    let (n, k) = (at.len(), kept.len());
+    let frames = bundle.meta.split.train[1];
+    let (residual, columns) = residual_and_jacobian(model, bundle, terms, frames)?;
+    let (n, k) = (residual.len(), columns.len());
     if n <= k {
         return Ok(None);
     }
-    let residual2: f64 = at.iter().zip(&observed).map(|(s, o)| (s - o).powi(2)).sum();
-    let sigma2 = residual2 / (n - k) as f64;
+    let sigma2 = squared(&residual) / (n - k) as f64;
     let jtj = nalgebra::DMatrix::from_fn(k, k, |a, b| {
         columns[a]
             .iter()
@@ -279,7 +347,6 @@ pub(crate) fn discover(
     bundle: &Bundle,
     base: &Scored,
     iterations: usize,
-    refit_iterations: usize,
     progress: Progress<'_>,
 ) -> Result<Discovery, DiagnoseError> {
     let count = model.particles.len().max(1) as f64;
@@ -309,18 +376,15 @@ pub(crate) fn discover(
     let mut rounds = 0;
     while rounds < MAX_ROUNDS && terms.any() {
         rounds += 1;
-        let mut done = 0;
-        let config = fit_config(iterations, terms, 0.0, Some(fit_end));
-        fit_material(&mut current, bundle, &config, &mut |_| {
-            done += 1;
+        let round = rounds;
+        let effects = regress(&mut current, bundle, terms, fit_end, &mut |step| {
             progress(
-                &format!("discovering a body force, round {rounds}"),
-                done,
-                iterations,
-            );
+                &format!("discovering a body force, round {round}"),
+                step,
+                MAX_LM_STEPS,
+            )
         })?;
-        let accelerations = term_accelerations(&current, bundle, about)?;
-        let kept = kept_terms(&accelerations, terms);
+        let kept = kept_terms(&effects, terms);
         for i in 0..7 {
             if !kept.0[i] {
                 set_force_field_value(&mut current.physics.effects.force_field, i, 0.0);
@@ -334,9 +398,17 @@ pub(crate) fn discover(
     // Validation: weakest first, a term goes if the frames no fit saw are
     // predicted at least as well without it.
     if terms.any() {
-        let accelerations = term_accelerations(&current, bundle, about)?;
-        let mut order: Vec<usize> = terms.indices().collect();
-        order.sort_by(|&a, &b| accelerations[a].total_cmp(&accelerations[b]));
+        let (residual, columns) = residual_and_jacobian(&current, bundle, terms, fit_end)?;
+        let n = residual.len().max(1) as f64;
+        let values = force_field_values(&current.physics.effects.force_field);
+        let strength: Vec<(usize, f64)> = terms
+            .indices()
+            .zip(&columns)
+            .map(|(i, c)| (i, values[i].abs() * squared(c).sqrt() / n.sqrt()))
+            .collect();
+        let mut order = strength;
+        order.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let order: Vec<usize> = order.into_iter().map(|(i, _)| i).collect();
         let mut with = validation_error(&current);
         for (k, &i) in order.iter().enumerate() {
             progress("validating the discovered terms", k, order.len());
@@ -351,11 +423,12 @@ pub(crate) fn discover(
         }
     }
     if terms.any() {
-        let mut done = 0;
-        let config = fit_config(iterations, terms, 0.0, None);
-        fit_material(&mut current, bundle, &config, &mut |_| {
-            done += 1;
-            progress("refitting the discovered terms", done, iterations);
+        regress(&mut current, bundle, terms, train_end, &mut |step| {
+            progress(
+                "regressing the kept terms on the training split",
+                step,
+                MAX_LM_STEPS,
+            )
         })?;
     }
     let dropped: Vec<String> = (0..7)
@@ -377,7 +450,7 @@ pub(crate) fn discover(
         spring: None,
         fitted_about_m: about,
         rounds,
-        iterations_per_round: iterations,
+        adjoint_iterations: iterations,
         train_reduction: 0.0,
         held_out_reduction: 0.0,
         score: 0.0,
@@ -395,11 +468,11 @@ pub(crate) fn discover(
     // The material refitted with the terms learnt beside it; kept only if
     // it lowers the training track error.
     let mut material_refit_kept = false;
-    if refit_iterations > 0 {
+    if iterations > 0 {
         let mut refitted = current.clone();
         let mut done = 0;
         let config = fit_config(
-            refit_iterations,
+            iterations,
             terms,
             MaterialFitConfig::default().learning_rate,
             None,
@@ -407,9 +480,9 @@ pub(crate) fn discover(
         let fitted = fit_material(&mut refitted, bundle, &config, &mut |_| {
             done += 1;
             progress(
-                "refitting the material with the discovered terms",
+                "learning the discovered terms with the material",
                 done,
-                refit_iterations,
+                iterations,
             );
         });
         if fitted.is_ok() {
@@ -421,7 +494,8 @@ pub(crate) fn discover(
             }
         }
     }
-    let covariance = covariance(&current, bundle, terms, progress)?;
+    progress("uncertainty of the discovered terms", 0, 1);
+    let covariance = covariance(&current, bundle, terms)?;
     let field = current.physics.effects.force_field;
     let values = force_field_values(&field);
     let kept: Vec<usize> = terms.indices().collect();
@@ -483,7 +557,7 @@ pub(crate) fn discover(
             spring,
             fitted_about_m: about,
             rounds,
-            iterations_per_round: iterations,
+            adjoint_iterations: iterations,
             train_reduction,
             held_out_reduction,
             score: train_reduction.min(held_out_reduction),
@@ -502,15 +576,15 @@ mod tests {
     #[test]
     fn thresholding_keeps_terms_above_both_floors() {
         let all = ForceFieldTerms::ALL;
-        // Largest 2.0 m/s²: the relative floor 0.5 rules.
-        let kept = kept_terms(&[2.0, 0.4, 0.6, 0.05, 0.0, 0.5, 0.2], all);
+        // Largest 10 mm: the relative floor of 2 mm rules.
+        let kept = kept_terms(&[0.010, 0.0015, 0.002, 0.0005, 0.0, 0.0025, 0.001], all);
         assert_eq!(kept.0, [true, false, true, false, false, true, false]);
-        // All small: the absolute floor rules.
-        let kept = kept_terms(&[0.12, 0.09, 0.0, 0.0, 0.0, 0.0, 0.11], all);
+        // All small: the absolute floor of 1 mm rules.
+        let kept = kept_terms(&[0.0012, 0.0009, 0.0, 0.0, 0.0, 0.0, 0.0011], all);
         assert_eq!(kept.0, [true, false, false, false, false, false, true]);
         // A term already dropped stays dropped.
         let some = ForceFieldTerms([false, true, true, false, false, false, false]);
-        let kept = kept_terms(&[5.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0], some);
+        let kept = kept_terms(&[0.05, 0.01, 0.01, 0.0, 0.0, 0.0, 0.0], some);
         assert_eq!(kept.0, [false, true, true, false, false, false, false]);
     }
 

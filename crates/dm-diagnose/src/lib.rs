@@ -74,14 +74,14 @@ pub struct DiagnoseOptions {
     /// one fit per candidate.
     #[arg(long)]
     pub fit_candidates: bool,
-    /// Adam steps per round of the open-ended body force fitted beside
-    /// the library (0: no discovery).
+    /// Adam steps learning the discovered body force with the material
+    /// (0: no discovery).
     #[arg(long, default_value_t = DEFAULT_DISCOVER_ITERS)]
     #[serde(default = "default_discover_iters")]
     pub discover_iters: usize,
 }
 
-/// Adam steps per thresholding round of the discovered body force.
+/// Adam steps learning the discovered body force with the material.
 pub const DEFAULT_DISCOVER_ITERS: usize = 12;
 
 fn default_discover_iters() -> usize {
@@ -523,14 +523,7 @@ pub fn diagnose(
 
     // Discover: a term outside the library.
     let (discovered, discovered_model) = if options.discover_iters > 0 {
-        let found = discover::discover(
-            &model,
-            &bundle,
-            &base,
-            options.discover_iters,
-            options.refit_iters,
-            progress,
-        )?;
+        let found = discover::discover(&model, &bundle, &base, options.discover_iters, progress)?;
         let path = match &found.model {
             Some(m) => {
                 let dir = out.join("discovered_model");

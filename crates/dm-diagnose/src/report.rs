@@ -196,14 +196,15 @@ fn write_discovered(s: &mut String, found: &Discovered, model: Option<&str>) {
     let _ = writeln!(
         s,
         "A body force on every grid node with mass (a push, a drag along each world axis, a \
-         spring towards {:?} m) fitted through the simulator on the training frames with the \
-         material held, terms under {} m/s² or under {:.0} % of the largest dropped, {} round(s) \
-         of {} steps.\n",
+         spring towards {:?} m) regressed on the simulator's response over the training frames \
+         with the material held; terms moving the tracks by under {} mm or under {:.0} % of the \
+         largest term dropped ({} round(s)), then each checked on the training split's last \
+         quarter, then learnt with the material through the adjoint ({} steps).\n",
         found.fitted_about_m.map(|c| (c * 1e3).round() / 1e3),
-        crate::discover::MIN_TERM_ACCEL,
-        100.0 * crate::discover::RELATIVE_TERM_ACCEL,
+        1e3 * crate::discover::MIN_TERM_EFFECT_M,
+        100.0 * crate::discover::RELATIVE_TERM_EFFECT,
         found.rounds,
-        found.iterations_per_round
+        found.adjoint_iterations
     );
     if found.terms.is_empty() {
         let _ = writeln!(s, "No term cleared the thresholds: nothing found.\n");
@@ -245,8 +246,8 @@ fn write_discovered(s: &mut String, found: &Discovered, model: Option<&str>) {
     }
     let _ = writeln!(
         s,
-        "Held-out track {} → {} ({:+.0} %); training {:+.0} %; the material refit with the \
-         terms in place {}. Model: `{}`. Dropped: {}.\n",
+        "Held-out track {} → {} ({:+.0} %); training {:+.0} %; the adjoint steps with the \
+         material {}. Model: `{}`. Dropped: {}.\n",
         mm(found.track_test_before),
         mm(found.track_test_after),
         -100.0 * found.held_out_reduction,

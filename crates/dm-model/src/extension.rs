@@ -4,7 +4,7 @@
 //! friction, plasticity, viscosity, gravity) are set on `physics` itself.
 
 use dm_bundle::Bundle;
-use dm_mpm::ParticleMaterial;
+use dm_mpm::{ParticleMaterial, Real};
 use serde::{Deserialize, Serialize};
 
 /// A ball of particles whose Lamé parameters are scaled by `factor`.
@@ -56,11 +56,15 @@ impl ModelExtension {
     }
 
     /// Scales the material inside the stiff ball (caller's particle order).
-    pub fn apply_to_material(&self, particles: &[[f64; 3]], material: &mut ParticleMaterial<f32>) {
+    pub fn apply_to_material<T: Real>(
+        &self,
+        particles: &[[f64; 3]],
+        material: &mut ParticleMaterial<T>,
+    ) {
         let (Some(ball), Some(inside)) = (&self.stiff_ball, self.inside_ball(particles)) else {
             return;
         };
-        let factor = ball.factor as f32;
+        let factor = T::lit(ball.factor);
         for (i, _) in inside.enumerate().filter(|(_, inside)| *inside) {
             material.mu[i] *= factor;
             material.lambda[i] *= factor;

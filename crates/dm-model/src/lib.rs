@@ -362,7 +362,16 @@ impl WorldModel {
     /// A fresh MPM world of this model at the first frame (with its
     /// extension's stiff ball and density gradient).
     pub fn world(&self) -> Result<World<f32>, ModelError> {
-        let mut material = self.particle_material();
+        self.world_in::<f32>()
+    }
+
+    /// [`WorldModel::world`] in the precision `T`: the tools run f32; f64
+    /// is the reference that tests hold the f32 world and its gradients to.
+    pub fn world_in<T: dm_mpm::Real>(&self) -> Result<World<T>, ModelError> {
+        let mut material = self
+            .patches
+            .particle_material::<T>(&self.params, &self.bounds);
+        self.options.experts.apply_to(&mut material);
         self.extension
             .apply_to_material(&self.particles, &mut material);
         let mut world = World::new(

@@ -8,6 +8,7 @@ use dm_mpm::scenes::{BenchExperts, bench_block, bench_block_frames};
 use std::time::Instant;
 
 mod cuda;
+mod images;
 
 #[derive(Parser, Debug)]
 #[command(name = "dm-bench", about = "DeformMaster benchmarks")]
@@ -107,6 +108,37 @@ enum Command {
         /// Timed repetitions after one warm-up (medians are printed).
         #[arg(long, default_value_t = 5)]
         repeats: usize,
+    },
+    /// dm-view's sphere-splat renderer (the synthetic scenes' images and
+    /// the previews): seeded splats over a checker floor, four cases.
+    SphereRender {
+        /// Splats of the dense object and of the sparse cloud.
+        #[arg(long, default_value_t = 50_000)]
+        splats: usize,
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        #[arg(long, default_value_t = 480)]
+        height: u32,
+        /// Timed renders per case after one warm-up (medians are printed).
+        #[arg(long, default_value_t = 20)]
+        repeats: usize,
+        /// Also write three views of the dense object side by side to this PNG.
+        #[arg(long)]
+        preview: Option<std::path::PathBuf>,
+    },
+    /// dm-eval's image metrics (PSNR, SSIM, LPIPS) of two textured images
+    /// at the benchmark's resolution; LPIPS needs the `make lpips` cache.
+    Metrics {
+        #[arg(long, default_value_t = 848)]
+        width: u32,
+        #[arg(long, default_value_t = 480)]
+        height: u32,
+        /// Timed calls per metric after one warm-up (means are printed).
+        #[arg(long, default_value_t = 10)]
+        repeats: usize,
+        /// ONNX Runtime intra-op threads of LPIPS (0: all cores).
+        #[arg(long, default_value_t = 0)]
+        lpips_threads: usize,
     },
     /// The playground's frame (simulation, splat LBS, message and a
     /// 640×480 view) of a fitted model: prints `play_fps` (docs/BENCHMARKS.md).
@@ -213,6 +245,19 @@ fn main() -> Result<()> {
             frames,
             simulation,
         } => play_bench(&model, frames, &simulation)?,
+        Command::SphereRender {
+            splats,
+            width,
+            height,
+            repeats,
+            preview,
+        } => images::sphere_render(splats, width, height, repeats, preview.as_deref())?,
+        Command::Metrics {
+            width,
+            height,
+            repeats,
+            lpips_threads,
+        } => images::metrics(width, height, repeats, lpips_threads)?,
     }
     Ok(())
 }

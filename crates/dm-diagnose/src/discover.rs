@@ -14,8 +14,9 @@
 //!    largest is dropped and the rest regressed again, until the set stops
 //!    changing.
 //! 3. On the training split's last [`VALIDATION_SHARE`], which no
-//!    regression saw, each kept term, weakest first, is dropped if the
-//!    track error there is no higher without it.
+//!    regression saw, each kept term, weakest first, is dropped if, with
+//!    the others regressed again without it, the track error there is at
+//!    most [`VALIDATION_MARGIN`] higher.
 //!
 //! The kept terms are regressed on the whole training split, then learnt
 //! through the adjoint with the material (`dm_fit`'s body-force group),
@@ -44,6 +45,9 @@ pub const MAX_LM_STEPS: usize = 4;
 /// The share of the training frames held out of the thresholding fits to
 /// validate each term (at least two frames).
 pub const VALIDATION_SHARE: f64 = 0.25;
+/// A term stays only if the validation frames' track error is more than
+/// this share higher without it: the simpler force wins near-ties.
+pub const VALIDATION_MARGIN: f64 = 0.03;
 /// The effect rate of the body force's fits (dm-fit's default effect rate).
 const DISCOVERY_LEARNING_RATE: f64 = 0.1;
 
@@ -395,8 +399,9 @@ pub(crate) fn discover(
         }
         terms = kept;
     }
-    // Validation: weakest first, a term goes if the frames no fit saw are
-    // predicted at least as well without it.
+    // Validation: weakest first, a term goes if, with the others regressed
+    // again without it, the frames no regression saw are predicted within
+    // VALIDATION_MARGIN of as well.
     if terms.any() {
         let (residual, columns) = residual_and_jacobian(&current, bundle, terms, fit_end)?;
         let n = residual.len().max(1) as f64;
@@ -414,11 +419,16 @@ pub(crate) fn discover(
             progress("validating the discovered terms", k, order.len());
             let mut without = current.clone();
             set_force_field_value(&mut without.physics.effects.force_field, i, 0.0);
+            let mut rest = terms;
+            rest.0[i] = false;
+            if rest.any() {
+                regress(&mut without, bundle, rest, fit_end, &mut |_| {})?;
+            }
             let error = validation_error(&without);
-            if error <= with {
+            if error <= with * (1.0 + VALIDATION_MARGIN) {
                 current = without;
                 with = error;
-                terms.0[i] = false;
+                terms = rest;
             }
         }
     }

@@ -27,7 +27,8 @@ use crate::analysis::{match_tracks, rollout};
 use crate::{DiagnoseError, Progress, Scored, score_trial};
 use dm_bundle::Bundle;
 use dm_fit::learnt_effects::{
-    FORCE_FIELD_SCALES, ForceFieldTerms, force_field_values, set_force_field_value,
+    FORCE_FIELD_SCALES, ForceFieldTerms, admissible_force_field_value, force_field_values,
+    set_force_field_value,
 };
 use dm_fit::material_fit::{MaterialFitConfig, fit_material};
 use dm_model::WorldModel;
@@ -139,16 +140,22 @@ fn residual_and_jacobian(
             set_force_field_value(&mut m.physics.effects.force_field, i, v);
             tracks(&m, bundle, frames).map(|t| t.0)
         };
-        let (lo, hi) = if i >= 3 && value < step {
-            (value, value + step)
-        } else {
-            (value - step, value + step)
+        // One-sided where a bound (a drag or the spring at 0 or at the
+        // substep's limit) stops the step.
+        let lo = admissible_force_field_value(&model.physics, i, value - step);
+        let hi = admissible_force_field_value(&model.physics, i, value + step);
+        let side = |v: f64| {
+            if v == value {
+                Ok(at.clone())
+            } else {
+                shifted(v)
+            }
         };
-        let (minus, plus) = if lo == value {
-            (at.clone(), shifted(hi)?)
-        } else {
-            (shifted(lo)?, shifted(hi)?)
-        };
+        let (minus, plus) = (side(lo)?, side(hi)?);
+        if hi <= lo {
+            columns.push(vec![0.0; at.len()]);
+            continue;
+        }
         if plus.len() != at.len() || minus.len() != at.len() {
             return Err(DiagnoseError::Input {
                 path: bundle.root.clone(),
@@ -218,8 +225,7 @@ fn regress(
             };
             let mut trial = model.clone();
             for (j, &i) in kept.iter().enumerate() {
-                let v = values[i] + delta[j];
-                let v = if i >= 3 { v.max(0.0) } else { v };
+                let v = admissible_force_field_value(&trial.physics, i, values[i] + delta[j]);
                 set_force_field_value(&mut trial.physics.effects.force_field, i, v);
             }
             let (at, observed) = tracks(&trial, bundle, frames)?;

@@ -428,9 +428,8 @@ pub fn add_force_field_group(
     ))
 }
 
-/// Writes the stepped body-force terms back: drags and the spring stay
-/// non-negative (a negative one would feed energy in) and within
-/// [`FORCE_FIELD_STIFFNESS_SHARE`] of the substep's stability limit.
+/// Writes the stepped body-force terms back, each made admissible
+/// ([`admissible_force_field_value`]).
 pub fn write_back_force_field(
     physics: &mut PhysicsConfig,
     params: &ParamSet,
@@ -439,19 +438,22 @@ pub fn write_back_force_field(
     let Some(scaled) = params.get(FORCE_FIELD_GROUP) else {
         return;
     };
-    let (drag_ceiling, spring_ceiling) = (
-        FORCE_FIELD_STIFFNESS_SHARE / physics.dt,
-        FORCE_FIELD_STIFFNESS_SHARE / (physics.dt * physics.dt),
-    );
-    let field = &mut physics.effects.force_field;
     for (&theta, i) in scaled.iter().zip(terms.indices()) {
-        let value = theta * FORCE_FIELD_SCALES[i];
-        let value = match i {
-            0..=2 => value,
-            3..=5 => value.clamp(0.0, drag_ceiling),
-            _ => value.clamp(0.0, spring_ceiling),
-        };
-        set_force_field_value(field, i, value);
+        let value = admissible_force_field_value(physics, i, theta * FORCE_FIELD_SCALES[i]);
+        set_force_field_value(&mut physics.effects.force_field, i, value);
+    }
+}
+
+/// `value` for term `i` of the body force within what `physics`' substep
+/// takes: drags and the spring non-negative (a negative one would feed
+/// energy in) and within [`FORCE_FIELD_STIFFNESS_SHARE`] of the stability
+/// limit `PhysicsConfig::validate` enforces.
+pub fn admissible_force_field_value(physics: &PhysicsConfig, i: usize, value: f64) -> f64 {
+    let dt = physics.dt;
+    match i {
+        0..=2 => value,
+        3..=5 => value.clamp(0.0, FORCE_FIELD_STIFFNESS_SHARE / dt),
+        _ => value.clamp(0.0, FORCE_FIELD_STIFFNESS_SHARE / (dt * dt)),
     }
 }
 

@@ -7,8 +7,8 @@
 //! effects in turn) hiding it, preset and magnitude drawn from the seed,
 //! fitted with `evaluation_fit_options` and diagnosed with dm-diagnose's
 //! defaults; the discovered body force is compared with the truth. Writes
-//! OUT_DIR/results.jsonl (one line per scene, appended as scenes finish)
-//! and prints a table.
+//! OUT_DIR/results.jsonl (one line per scene, appended as scenes finish;
+//! a rerun skips the scenes it holds) and prints a line per scene.
 
 use dm_diagnose::DiagnoseOptions;
 use dm_studies::diagnosis_evaluation::evaluation_fit_options;
@@ -42,8 +42,14 @@ fn main() -> anyhow::Result<()> {
                 .map(move |(e, &name)| (first_seed + 3 * k + e as u64, name))
         })
         .collect();
+    // Scenes already in results.jsonl are not run again.
+    let done: Vec<OutsideResult> = std::fs::read_to_string(out.join("results.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|line| serde_json::from_str(line).ok())
+        .collect();
     for (i, &(seed, effect)) in scenes.iter().enumerate() {
-        if i % shards != shard {
+        if i % shards != shard || done.iter().any(|r| r.seed == seed) {
             continue;
         }
         let dir = out.join(format!("{}{seed}", effect.name()));

@@ -76,6 +76,7 @@ demo: build
 	@echo "novel view   : $(OUT)/render/render.mp4 (frames $(OUT)/render/frame_*.png)"
 	@echo "playground   : ./target/release/dm-play $(OUT)/model   (prints the URL to open)"
 	@python3 -c 'import json; d=json.load(open("$(OUT)/diagnose/diagnosis.json")); t=json.load(open("$(OUT)/diag_scene.truth.json")); e=t.get("effect") or {"name": "none"}; g=d["gain"]; print("diagnosis    : hidden %s -> named %s (confidence %.2f); held-out track %.1f -> %.1f mm; $(OUT)/diagnose/report.md" % (e["name"], d["cause"], d["confidence"], 1e3*g["track_before"], 1e3*g["track_after"]))' || true
+	@python3 -c 'import json; x=(json.load(open("$(OUT)/diagnose/diagnosis.json")).get("discovered") or {}); print("discovered   : %s; held-out track %.1f -> %.1f mm" % (x["formula"], 1e3*x["track_test_before"], 1e3*x["track_test_after"])) if x else None' || true
 	@python3 -c 'import json; p=json.load(open("$(OUT)/plan/plan.json")); print("plan         : goal %s, Chamfer to it %.1f mm at the start -> %.1f planned -> %.1f mm carried out in the truth world (%.0f s); $(OUT)/plan/video/render.mp4" % (p["goal"]["name"], 1e3*p["start"]["final_chamfer_m"], 1e3*p["planned"]["final_chamfer_m"], 1e3*p["executed"]["final_chamfer_m"], p["seconds"]))' || true
 	@echo "python       : make python, then .venv-python/bin/python examples/python/rollout.py $(OUT)/model $(OUT)/scene"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"

@@ -287,7 +287,9 @@ pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
 /// Runs the whole diagnosis of `model_dir` (dm-fit's output) on `bundle`
 /// and writes `out/diagnosis.json`, `out/report.md`, plots and, when a
-/// cause is named, `out/extended_model/model.json`.
+/// cause is named, `out/extended_model/model.json`: [`show`] where the
+/// model departs, [`name`] the cause, [`extend`] the model with it,
+/// [`measure`] the gain, and [`discover_outside_library`].
 pub fn diagnose(
     model_dir: &Path,
     bundle_dir: &Path,
@@ -307,11 +309,101 @@ pub fn diagnose(
         problem: e.to_string(),
     })?;
 
-    // Show.
-    progress("base rollout", 0, 1);
-    let (base, base_run) = score_model(&model, &bundle)?;
+    let shown = show(&model, &bundle, progress)?;
+    let mut named = name(model_dir, &model, &bundle, &shown, options, out, progress)?;
+    let (extended, refit) = extend(&model, &model_path, &bundle, &mut named, options, progress)?;
+    let measured = measure(out, &shown.base, extended.as_ref())?;
+    let truth_cmp = truth_value.as_ref().map(|t| {
+        compare_truth(
+            t,
+            &named.cause,
+            &measured.effect_parameters,
+            bundle.meta.fps,
+        )
+    });
+    let (discovered, discovered_model) =
+        discover_outside_library(&model, &bundle, &shown.base, options, out, progress)?;
+
+    let Named {
+        candidates,
+        cause,
+        confidence,
+        trial_records,
+        fit_records,
+        ..
+    } = named;
+    let diagnosis = Diagnosis {
+        cause,
+        confidence,
+        candidates,
+        extended_model: measured.extended_model,
+        gain: measured.gain,
+        effect_parameters: measured.effect_parameters,
+        threshold: options.none_threshold,
+        candidates_fitted: options.fit_candidates,
+        signatures: shown.signatures,
+        regions_test: shown.regions_test,
+        truth: truth_cmp,
+        refit,
+        discovered,
+        discovered_model,
+        options: options.clone(),
+    };
+    progress("plots and report", 0, 1);
     let split = bundle.meta.split;
-    let matched = match_tracks(&bundle, &base_run.positions);
+    let plot_inputs = plots::PlotInputs {
+        bundle: &bundle,
+        split,
+        base_track: &shown.base.track_per_frame,
+        extended_track: measured.after_per_frame.as_deref(),
+        per_track_test: &shown.per_track_test,
+        samples: &shown.samples,
+        residual_dv: &shown.base_run.residual_dv,
+        diagnosis: &diagnosis,
+        up: shown.up,
+        axis: shown.axis,
+    };
+    let plot_files = plots::write_plots(&plot_inputs, out)?;
+    report::write_report(out, &diagnosis, &plot_files, &bundle, &shown.base_run)?;
+    write_json_atomic(
+        &out.join("trials.json"),
+        &TrialsFile {
+            train_frames: split.train,
+            test_frames: split.test,
+            base_track_per_frame: &shown.base.track_per_frame,
+            trials: &trial_records,
+            candidate_fits: &fit_records,
+        },
+    )?;
+    write_json_atomic(&out.join("diagnosis.json"), &diagnosis)?;
+    Ok(diagnosis)
+}
+
+/// What [`show`] finds: the fitted model's rollout and errors, where they
+/// sit, and the residual accelerations' signatures.
+struct Shown {
+    base: Scored,
+    base_run: Rollout,
+    per_track_test: Vec<f64>,
+    regions_test: Vec<analysis::RegionError>,
+    samples: Vec<analysis::AccelSample>,
+    signatures: signatures::Signatures,
+    up: [f64; 3],
+    axis: [f64; 3],
+}
+
+/// "Show": the fitted model rolled out, its errors per split, track and
+/// region, and the signatures of the training frames' residual
+/// accelerations (they orient the trials).
+fn show(
+    model: &WorldModel,
+    bundle: &Bundle,
+    progress: Progress<'_>,
+) -> Result<Shown, DiagnoseError> {
+    progress("base rollout", 0, 1);
+    let (base, base_run) = score_model(model, bundle)?;
+    let split = bundle.meta.split;
+    let matched = match_tracks(bundle, &base_run.positions);
     let up = model
         .physics
         .floor
@@ -320,23 +412,22 @@ pub fn diagnose(
     let floor_height = model.physics.floor.as_ref().map_or(0.0, |f| f.height);
     let axis = main_axis(&model.particles);
     let per_track_test = per_track_error(&matched, split.test);
-    let regions_test = region_errors(&bundle, &per_track_test, up, axis);
+    let regions_test = region_errors(bundle, &per_track_test, up, axis);
     let samples = analysis::residual_accelerations(&matched, bundle.meta.fps);
-    // Signatures from the training frames only: they orient the trials.
     let train_samples: Vec<_> = samples
         .iter()
         .copied()
         .filter(|s| s.frame + analysis::ACCEL_STRIDE < split.train[1])
         .collect();
-    let near_hand = near_hand_tracks(&bundle);
+    let near_hand = near_hand_tracks(bundle);
     let hand_centroid: Vec<[f64; 3]> = (0..split.train[1])
-        .map(|t| centroid(&dm_model::hand_anchors(&bundle, t)))
+        .map(|t| centroid(&dm_model::hand_anchors(bundle, t)))
         .collect();
     let train_matched = analysis::Matched {
         observed: matched.observed[..split.train[1].min(matched.observed.len())].to_vec(),
         simulated: matched.simulated[..split.train[1].min(matched.simulated.len())].to_vec(),
     };
-    let sig = signatures::signatures(
+    let signatures = signatures::signatures(
         &train_samples,
         &train_matched,
         &near_hand,
@@ -345,18 +436,54 @@ pub fn diagnose(
         floor_height,
         axis,
     );
+    Ok(Shown {
+        base,
+        base_run,
+        per_track_test,
+        regions_test,
+        samples,
+        signatures,
+        up,
+        axis,
+    })
+}
 
-    // Name.
+/// What [`name`] decides, and the evidence behind it.
+struct Named {
+    /// Scores, best first.
+    candidates: Vec<CandidateScore>,
+    /// Each candidate's best trial and its scores.
+    best_per_candidate: BTreeMap<&'static str, (Trial, Scored)>,
+    cause: String,
+    confidence: f64,
+    trial_records: Vec<TrialRecord>,
+    fit_records: Vec<TrialRecord>,
+}
+
+/// "Name": every candidate's trials scored on the training frames (with
+/// `--fit-candidates` the best one fitted from the start), each
+/// candidate scored by min(train, held-out) reduction, the best named if
+/// it clears the threshold.
+fn name(
+    model_dir: &Path,
+    model: &WorldModel,
+    bundle: &Bundle,
+    shown: &Shown,
+    options: &DiagnoseOptions,
+    out: &Path,
+    progress: Progress<'_>,
+) -> Result<Named, DiagnoseError> {
+    let base = &shown.base;
     let all_trials: Vec<Trial> = Candidate::ALL
         .iter()
-        .flat_map(|&c| trials(c, &model, &sig))
+        .flat_map(|&c| trials(c, model, &shown.signatures))
         .collect();
     let total = all_trials.len();
     let mut best_per_candidate: BTreeMap<&'static str, (Trial, Scored)> = BTreeMap::new();
     let mut trial_records = Vec::with_capacity(total);
     for (i, trial) in all_trials.into_iter().enumerate() {
         progress(&format!("candidate {}", trial.candidate.name()), i, total);
-        let scored = score_trial(&trial.model, &bundle);
+        let scored = score_trial(&trial.model, bundle);
         let name = trial.candidate.name();
         trial_records.push(TrialRecord::new(name, &trial.parameters, &scored));
         let better = best_per_candidate
@@ -368,7 +495,7 @@ pub fn diagnose(
     }
     let mut fit_records = Vec::new();
     if options.fit_candidates {
-        let fits = fit_candidates(model_dir, &bundle, &best_per_candidate, out, progress)?;
+        let fits = fit_candidates(model_dir, bundle, &best_per_candidate, out, progress)?;
         for CandidateFit {
             name,
             model: fitted,
@@ -384,20 +511,13 @@ pub fn diagnose(
             }
         }
     }
-    let relative = |before: f64, after: f64| {
-        if after.is_finite() && before > 0.0 {
-            (before - after) / before
-        } else {
-            -1.0
-        }
-    };
     let mut candidates: Vec<CandidateScore> = Candidate::ALL
         .iter()
         .filter_map(|c| {
             let (trial, scored) = best_per_candidate.get(c.name())?;
-            let (signature, signature_agrees) = c.signature_text(&sig);
-            let held_out = relative(base.track_test, scored.track_test);
-            let train_reduction = relative(base.track_train, scored.track_train);
+            let (signature, signature_agrees) = c.signature_text(&shown.signatures);
+            let held_out = relative_reduction(base.track_test, scored.track_test);
+            let train_reduction = relative_reduction(base.track_train, scored.track_train);
             Some(CandidateScore {
                 name: c.name().into(),
                 // A real effect explains error where its parameter was fitted
@@ -415,178 +535,182 @@ pub fn diagnose(
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let best = candidates.first().map_or(0.0, |c| c.score.max(0.0));
     let second = candidates.get(1).map_or(0.0, |c| c.score.max(0.0));
-    let named = best >= options.none_threshold;
-    let cause = if named {
+    let cause = if best >= options.none_threshold {
         candidates[0].name.clone()
     } else {
         "none".to_string()
     };
-    let confidence = confidence(best, second, options.none_threshold);
+    Ok(Named {
+        confidence: confidence(best, second, options.none_threshold),
+        candidates,
+        best_per_candidate,
+        cause,
+        trial_records,
+        fit_records,
+    })
+}
 
-    // Extend and measure.
-    let mut extended: Option<(WorldModel, Scored, BTreeMap<String, f64>)> = None;
-    let mut refit = None;
-    if named {
-        let (trial, scored) =
-            best_per_candidate
-                .remove(cause.as_str())
-                .ok_or_else(|| DiagnoseError::Input {
-                    path: model_path.clone(),
-                    problem: "internal: the named candidate has no trial".into(),
-                })?;
-        let mut best_trial = (trial, scored);
-        // A candidate fitted from the start already carries its refitted
-        // material and gains; refining its effect on the original fit's
-        // material would mix the two.
-        let refine = if options.fit_candidates {
-            Vec::new()
-        } else {
-            refinements(&best_trial.0, &model)
-        };
-        let effect_trials = refine.len();
-        for (i, t) in refine.into_iter().enumerate() {
-            progress("refining the effect parameter", i, effect_trials);
-            let s = score_trial(&t.model, &bundle);
-            if s.track_train < best_trial.1.track_train {
-                best_trial = (t, s);
-            }
-        }
-        let (trial, mut scored) = best_trial;
-        let mut extended_model = trial.model.clone();
-        let (record, refitted) = if options.fit_candidates {
-            let before = train_loss(&extended_model, &bundle, bundle.meta.split.train[1])?;
-            (
-                RefitRecord {
-                    effect_trials: 0,
-                    material_iterations: 0,
-                    train_loss_before: before,
-                    train_loss_after: before,
-                    material_kept: false,
-                    note: "fitted from the start with the effect in place (--fit-candidates)"
-                        .into(),
-                },
-                None,
-            )
-        } else {
-            refit_material(&extended_model, &bundle, options, progress)?
-        };
-        if let Some(refitted) = refitted {
-            let s = score_trial(&refitted, &bundle);
-            if s.track_train < scored.track_train {
-                extended_model = refitted;
-                scored = s;
-            }
-        }
-        let record = RefitRecord {
-            material_kept: extended_model != trial.model,
-            effect_trials,
-            ..record
-        };
-        refit = Some(record);
-        let parameters =
-            with_learnt_parameters(trial.candidate, &trial.parameters, &extended_model);
-        extended = Some((extended_model, scored, parameters));
+/// (before − after) / before, or −1 where `after` is not finite.
+fn relative_reduction(before: f64, after: f64) -> f64 {
+    if after.is_finite() && before > 0.0 {
+        (before - after) / before
+    } else {
+        -1.0
     }
-    let extended_dir = out.join("extended_model");
-    let (gain, effect_parameters, after_per_frame) = match &extended {
-        Some((m, s, p)) => {
-            std::fs::create_dir_all(&extended_dir).map_err(|e| DiagnoseError::Output {
-                path: extended_dir.clone(),
-                problem: e.to_string(),
-            })?;
-            write_json_atomic(&extended_dir.join("model.json"), m)?;
-            (
-                Gain {
-                    track_before: base.track_test,
-                    track_after: s.track_test,
-                    chamfer_before: base.chamfer_test,
-                    chamfer_after: s.chamfer_test,
-                },
-                p.clone(),
-                Some(s.track_per_frame.clone()),
-            )
+}
+
+/// The extended model, its scores and its effect parameters.
+type Extension = (WorldModel, Scored, BTreeMap<String, f64>);
+
+/// "Extend": the named candidate's trial refined on the training frames,
+/// then its material refitted with the effect in place (kept only if it
+/// lowers the training error); nothing when the cause is `none`.
+fn extend(
+    model: &WorldModel,
+    model_path: &Path,
+    bundle: &Bundle,
+    named: &mut Named,
+    options: &DiagnoseOptions,
+    progress: Progress<'_>,
+) -> Result<(Option<Extension>, Option<RefitRecord>), DiagnoseError> {
+    if named.cause == "none" {
+        return Ok((None, None));
+    }
+    let (trial, scored) = named
+        .best_per_candidate
+        .remove(named.cause.as_str())
+        .ok_or_else(|| DiagnoseError::Input {
+            path: model_path.to_path_buf(),
+            problem: "internal: the named candidate has no trial".into(),
+        })?;
+    let mut best_trial = (trial, scored);
+    // A candidate fitted from the start already carries its refitted
+    // material and gains; refining its effect on the original fit's
+    // material would mix the two.
+    let refine = if options.fit_candidates {
+        Vec::new()
+    } else {
+        refinements(&best_trial.0, model)
+    };
+    let effect_trials = refine.len();
+    for (i, t) in refine.into_iter().enumerate() {
+        progress("refining the effect parameter", i, effect_trials);
+        let s = score_trial(&t.model, bundle);
+        if s.track_train < best_trial.1.track_train {
+            best_trial = (t, s);
         }
-        None => (
-            Gain {
+    }
+    let (trial, mut scored) = best_trial;
+    let mut extended_model = trial.model.clone();
+    let (record, refitted) = if options.fit_candidates {
+        let before = train_loss(&extended_model, bundle, bundle.meta.split.train[1])?;
+        (
+            RefitRecord {
+                effect_trials: 0,
+                material_iterations: 0,
+                train_loss_before: before,
+                train_loss_after: before,
+                material_kept: false,
+                note: "fitted from the start with the effect in place (--fit-candidates)".into(),
+            },
+            None,
+        )
+    } else {
+        refit_material(&extended_model, bundle, options, progress)?
+    };
+    if let Some(refitted) = refitted {
+        let s = score_trial(&refitted, bundle);
+        if s.track_train < scored.track_train {
+            extended_model = refitted;
+            scored = s;
+        }
+    }
+    let record = RefitRecord {
+        material_kept: extended_model != trial.model,
+        effect_trials,
+        ..record
+    };
+    let parameters = with_learnt_parameters(trial.candidate, &trial.parameters, &extended_model);
+    Ok((Some((extended_model, scored, parameters)), Some(record)))
+}
+
+/// What [`measure`] reports.
+struct Measured {
+    gain: Gain,
+    effect_parameters: BTreeMap<String, f64>,
+    after_per_frame: Option<Vec<f64>>,
+    extended_model: Option<String>,
+}
+
+/// "Measure": the extended model written to `out/extended_model/` and
+/// its test-split gain over the fitted model (none without a cause).
+fn measure(
+    out: &Path,
+    base: &Scored,
+    extended: Option<&Extension>,
+) -> Result<Measured, DiagnoseError> {
+    let Some((model, scored, parameters)) = extended else {
+        return Ok(Measured {
+            gain: Gain {
                 track_before: base.track_test,
                 track_after: base.track_test,
                 chamfer_before: base.chamfer_test,
                 chamfer_after: base.chamfer_test,
             },
-            BTreeMap::new(),
-            None,
-        ),
+            effect_parameters: BTreeMap::new(),
+            after_per_frame: None,
+            extended_model: None,
+        });
     };
-    let truth_cmp = truth_value
-        .as_ref()
-        .map(|t| compare_truth(t, &cause, &effect_parameters, bundle.meta.fps));
-
-    // Discover: a term outside the library.
-    let (discovered, discovered_model) = if options.discover_iters > 0 {
-        let found = discover::discover(&model, &bundle, &base, options.discover_iters, progress)?;
-        let path = match &found.model {
-            Some(m) => {
-                let dir = out.join("discovered_model");
-                std::fs::create_dir_all(&dir).map_err(|e| DiagnoseError::Output {
-                    path: dir.clone(),
-                    problem: e.to_string(),
-                })?;
-                write_json_atomic(&dir.join("model.json"), m)?;
-                Some(dir.display().to_string())
-            }
-            None => None,
-        };
-        (Some(found.discovered), path)
-    } else {
-        (None, None)
-    };
-
-    let diagnosis = Diagnosis {
-        cause,
-        confidence,
-        candidates,
-        extended_model: extended
-            .as_ref()
-            .map(|_| extended_dir.display().to_string()),
-        gain,
-        effect_parameters,
-        threshold: options.none_threshold,
-        candidates_fitted: options.fit_candidates,
-        signatures: sig,
-        regions_test,
-        truth: truth_cmp,
-        refit,
-        discovered,
-        discovered_model,
-        options: options.clone(),
-    };
-    progress("plots and report", 0, 1);
-    let plot_inputs = plots::PlotInputs {
-        bundle: &bundle,
-        split,
-        base_track: &base.track_per_frame,
-        extended_track: after_per_frame.as_deref(),
-        per_track_test: &per_track_test,
-        samples: &samples,
-        residual_dv: &base_run.residual_dv,
-        diagnosis: &diagnosis,
-        up,
-        axis,
-    };
-    let plot_files = plots::write_plots(&plot_inputs, out)?;
-    report::write_report(out, &diagnosis, &plot_files, &bundle, &base_run)?;
-    write_json_atomic(
-        &out.join("trials.json"),
-        &TrialsFile {
-            train_frames: split.train,
-            test_frames: split.test,
-            base_track_per_frame: &base.track_per_frame,
-            trials: &trial_records,
-            candidate_fits: &fit_records,
+    let dir = out.join("extended_model");
+    write_model(&dir, model)?;
+    Ok(Measured {
+        gain: Gain {
+            track_before: base.track_test,
+            track_after: scored.track_test,
+            chamfer_before: base.chamfer_test,
+            chamfer_after: scored.chamfer_test,
         },
-    )?;
-    write_json_atomic(&out.join("diagnosis.json"), &diagnosis)?;
-    Ok(diagnosis)
+        effect_parameters: parameters.clone(),
+        after_per_frame: Some(scored.track_per_frame.clone()),
+        extended_model: Some(dir.display().to_string()),
+    })
+}
+
+/// "Discover" (`discover.rs`): the body force outside the library, its
+/// model written to `out/discovered_model/`; nothing with
+/// `--discover-iters 0`.
+fn discover_outside_library(
+    model: &WorldModel,
+    bundle: &Bundle,
+    base: &Scored,
+    options: &DiagnoseOptions,
+    out: &Path,
+    progress: Progress<'_>,
+) -> Result<(Option<discover::Discovered>, Option<String>), DiagnoseError> {
+    if options.discover_iters == 0 {
+        return Ok((None, None));
+    }
+    let found = discover::discover(model, bundle, base, options.discover_iters, progress)?;
+    let path = match &found.model {
+        Some(m) => {
+            let dir = out.join("discovered_model");
+            write_model(&dir, m)?;
+            Some(dir.display().to_string())
+        }
+        None => None,
+    };
+    Ok((Some(found.discovered), path))
+}
+
+/// `dir/model.json`, the directory made first.
+fn write_model(dir: &Path, model: &WorldModel) -> Result<(), DiagnoseError> {
+    std::fs::create_dir_all(dir).map_err(|e| DiagnoseError::Output {
+        path: dir.to_path_buf(),
+        problem: e.to_string(),
+    })?;
+    write_json_atomic(&dir.join("model.json"), model)?;
+    Ok(())
 }
 
 /// Confidence in the answer, 0–1. For a named cause: the margin over the

@@ -176,6 +176,35 @@ fn squared(values: &[f64]) -> f64 {
     values.iter().map(|v| v * v).sum()
 }
 
+/// JᵀJ of the Jacobian's `columns`.
+fn normal_matrix(columns: &[Vec<f64>]) -> nalgebra::DMatrix<f64> {
+    let k = columns.len();
+    nalgebra::DMatrix::from_fn(k, k, |a, b| {
+        columns[a]
+            .iter()
+            .zip(&columns[b])
+            .map(|(x, y)| x * y)
+            .sum::<f64>()
+    })
+}
+
+/// Each term's effect on the tracks, |θ_j| ‖J_j‖ / √n (m RMS over the `n`
+/// residual components; 0 for terms not in `terms`), `columns` in the
+/// order of `terms`.
+fn term_effects(
+    values: &[f64; 7],
+    terms: ForceFieldTerms,
+    columns: &[Vec<f64>],
+    n: usize,
+) -> [f64; 7] {
+    let n = n.max(1) as f64;
+    let mut effects = [0.0; 7];
+    for (i, column) in terms.indices().zip(columns) {
+        effects[i] = values[i].abs() * squared(column).sqrt() / n.sqrt();
+    }
+    effects
+}
+
 /// Levenberg–Marquardt on `terms` of `model`'s body force over frames
 /// `[0, frames)`; returns each term's effect on the tracks (m RMS,
 /// |θ_j| ‖J_j‖ / √n; 0 for terms not in `terms`).
@@ -192,19 +221,10 @@ fn regress(
     for step in 0..MAX_LM_STEPS {
         progress(step);
         let (residual, columns) = residual_and_jacobian(model, bundle, terms, frames)?;
-        let n = residual.len().max(1) as f64;
         let values = force_field_values(&model.physics.effects.force_field);
-        for (j, &i) in kept.iter().enumerate() {
-            effects[i] = values[i].abs() * squared(&columns[j]).sqrt() / n.sqrt();
-        }
+        effects = term_effects(&values, terms, &columns, residual.len());
         let k = kept.len();
-        let jtj = nalgebra::DMatrix::from_fn(k, k, |a, b| {
-            columns[a]
-                .iter()
-                .zip(&columns[b])
-                .map(|(x, y)| x * y)
-                .sum::<f64>()
-        });
+        let jtj = normal_matrix(&columns);
         let jtr = nalgebra::DVector::from_fn(k, |a, _| {
             columns[a]
                 .iter()
@@ -307,13 +327,7 @@ fn covariance(
         return Ok(None);
     }
     let sigma2 = squared(&residual) / (n - k) as f64;
-    let jtj = nalgebra::DMatrix::from_fn(k, k, |a, b| {
-        columns[a]
-            .iter()
-            .zip(&columns[b])
-            .map(|(x, y)| x * y)
-            .sum::<f64>()
-    });
+    let jtj = normal_matrix(&columns);
     Ok(jtj.try_inverse().map(|inverse| inverse * sigma2))
 }
 
@@ -410,16 +424,10 @@ pub(crate) fn discover(
     // VALIDATION_MARGIN of as well.
     if terms.any() {
         let (residual, columns) = residual_and_jacobian(&current, bundle, terms, fit_end)?;
-        let n = residual.len().max(1) as f64;
         let values = force_field_values(&current.physics.effects.force_field);
-        let strength: Vec<(usize, f64)> = terms
-            .indices()
-            .zip(&columns)
-            .map(|(i, c)| (i, values[i].abs() * squared(c).sqrt() / n.sqrt()))
-            .collect();
-        let mut order = strength;
-        order.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let order: Vec<usize> = order.into_iter().map(|(i, _)| i).collect();
+        let effects = term_effects(&values, terms, &columns, residual.len());
+        let mut order: Vec<usize> = terms.indices().collect();
+        order.sort_by(|&a, &b| effects[a].total_cmp(&effects[b]));
         let mut with = validation_error(&current);
         for (k, &i) in order.iter().enumerate() {
             progress("validating the discovered terms", k, order.len());

@@ -75,7 +75,8 @@ pub(crate) fn write_report(
     {
         let _ = writeln!(
             s,
-            "**Outside the library:** a body force `{}` explains {:.0} % of the training and              {:.0} % of the held-out track error (section \"Discovered term\").\n",
+            "**Outside the library:** a body force `{}` explains {:.0} % of the training and \
+             {:.0} % of the held-out track error (section \"Discovered term\").\n",
             found.formula,
             100.0 * found.train_reduction,
             100.0 * found.held_out_reduction

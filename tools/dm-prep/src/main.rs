@@ -440,12 +440,26 @@ fn score_command(args: &ScoreArgs) -> Result<()> {
             args.reference.display()
         )
     })?;
-    println!("track_error_median_m {:.6}", score.median_m);
-    println!("track_error_mean_m {:.6}", score.mean_m);
-    println!("track_error_p90_m {:.6}", score.p90_m);
-    println!("frame0_match_median_m {:.6}", score.match_median_m);
-    println!("scored_entries {} tracks {}", score.entries, score.tracks);
-    Ok(())
+    print_to_reader(&format!(
+        "track_error_median_m {:.6}\ntrack_error_mean_m {:.6}\ntrack_error_p90_m {:.6}\n\
+         frame0_match_median_m {:.6}\nscored_entries {} tracks {}\n",
+        score.median_m,
+        score.mean_m,
+        score.p90_m,
+        score.match_median_m,
+        score.entries,
+        score.tracks
+    ))
+}
+
+/// Writes `text` to stdout; a reader that has stopped reading (`dm-prep
+/// score … | head -1`) is not an error.
+fn print_to_reader(text: &str) -> Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
 }
 
 fn main() -> ExitCode {

@@ -63,6 +63,40 @@ fn import_phystwin_writes_a_valid_bundle() {
     ]);
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("already exists"));
+
+    // `score` against itself: zero error, and a reader that has gone
+    // (`dm-prep score … | head -1`) ends it quietly instead of a panic on
+    // the closed pipe.
+    let scored = dm_prep(&[
+        "score".as_ref(),
+        out.as_os_str(),
+        "--reference".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(
+        scored.status.success(),
+        "{}",
+        String::from_utf8_lossy(&scored.stderr)
+    );
+    assert!(String::from_utf8_lossy(&scored.stdout).contains("track_error_median_m 0.000000"));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dm-prep"))
+        .args([
+            "score".as_ref(),
+            out.as_os_str(),
+            "--reference".as_ref(),
+            out.as_os_str(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("dm-prep runs");
+    drop(child.stdout.take());
+    let closed = child.wait_with_output().expect("dm-prep ends");
+    assert!(
+        closed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&closed.stderr)
+    );
 }
 
 #[test]

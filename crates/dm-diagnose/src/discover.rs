@@ -128,7 +128,18 @@ fn residual_and_jacobian(
     terms: ForceFieldTerms,
     frames: usize,
 ) -> Result<(Vec<f64>, Vec<Vec<f64>>), DiagnoseError> {
-    let (at, observed) = tracks(model, bundle, frames)?;
+    let at_model = tracks(model, bundle, frames)?;
+    jacobian_at(model, bundle, terms, frames, at_model)
+}
+
+/// [`residual_and_jacobian`] given `model`'s own [`tracks`] over the frames.
+fn jacobian_at(
+    model: &WorldModel,
+    bundle: &Bundle,
+    terms: ForceFieldTerms,
+    frames: usize,
+    (at, observed): (Vec<f64>, Vec<f64>),
+) -> Result<(Vec<f64>, Vec<Vec<f64>>), DiagnoseError> {
     let residual: Vec<f64> = at.iter().zip(&observed).map(|(s, o)| s - o).collect();
     let values = force_field_values(&model.physics.effects.force_field);
     let mut columns = Vec::new();
@@ -144,6 +155,10 @@ fn residual_and_jacobian(
         // substep's limit) stops the step.
         let lo = admissible_force_field_value(&model.physics, i, value - step);
         let hi = admissible_force_field_value(&model.physics, i, value + step);
+        if hi <= lo {
+            columns.push(vec![0.0; at.len()]);
+            continue;
+        }
         let side = |v: f64| {
             if v == value {
                 Ok(at.clone())
@@ -152,10 +167,6 @@ fn residual_and_jacobian(
             }
         };
         let (minus, plus) = (side(lo)?, side(hi)?);
-        if hi <= lo {
-            columns.push(vec![0.0; at.len()]);
-            continue;
-        }
         if plus.len() != at.len() || minus.len() != at.len() {
             return Err(DiagnoseError::Input {
                 path: bundle.root.clone(),
@@ -176,16 +187,14 @@ fn squared(values: &[f64]) -> f64 {
     values.iter().map(|v| v * v).sum()
 }
 
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
 /// JᵀJ of the Jacobian's `columns`.
 fn normal_matrix(columns: &[Vec<f64>]) -> nalgebra::DMatrix<f64> {
     let k = columns.len();
-    nalgebra::DMatrix::from_fn(k, k, |a, b| {
-        columns[a]
-            .iter()
-            .zip(&columns[b])
-            .map(|(x, y)| x * y)
-            .sum::<f64>()
-    })
+    nalgebra::DMatrix::from_fn(k, k, |a, b| dot(&columns[a], &columns[b]))
 }
 
 /// Each term's effect on the tracks, |θ_j| ‖J_j‖ / √n (m RMS over the `n`
@@ -218,20 +227,16 @@ fn regress(
     let kept: Vec<usize> = terms.indices().collect();
     let mut damping = 1e-3;
     let mut effects = [0.0; 7];
+    // The model's tracks: rolled out once, then those of each accepted step.
+    let mut at_model = tracks(model, bundle, frames)?;
     for step in 0..MAX_LM_STEPS {
         progress(step);
-        let (residual, columns) = residual_and_jacobian(model, bundle, terms, frames)?;
+        let (residual, columns) = jacobian_at(model, bundle, terms, frames, at_model.clone())?;
         let values = force_field_values(&model.physics.effects.force_field);
         effects = term_effects(&values, terms, &columns, residual.len());
         let k = kept.len();
         let jtj = normal_matrix(&columns);
-        let jtr = nalgebra::DVector::from_fn(k, |a, _| {
-            columns[a]
-                .iter()
-                .zip(&residual)
-                .map(|(x, r)| x * r)
-                .sum::<f64>()
-        });
+        let jtr = nalgebra::DVector::from_fn(k, |a, _| dot(&columns[a], &residual));
         let before = squared(&residual);
         let mut improved = false;
         for _ in 0..4 {
@@ -248,10 +253,16 @@ fn regress(
                 let v = admissible_force_field_value(&trial.physics, i, values[i] + delta[j]);
                 set_force_field_value(&mut trial.physics.effects.force_field, i, v);
             }
-            let (at, observed) = tracks(&trial, bundle, frames)?;
-            let after: f64 = at.iter().zip(&observed).map(|(s, o)| (s - o).powi(2)).sum();
+            let at_trial = tracks(&trial, bundle, frames)?;
+            let after: f64 = at_trial
+                .0
+                .iter()
+                .zip(&at_trial.1)
+                .map(|(s, o)| (s - o).powi(2))
+                .sum();
             if after < before {
                 *model = trial;
+                at_model = at_trial;
                 damping = (damping / 10.0).max(1e-6);
                 improved = (before - after) > 1e-3 * before;
                 break;
@@ -272,18 +283,12 @@ fn kept_terms(effects: &[f64; 7], terms: ForceFieldTerms) -> ForceFieldTerms {
     ForceFieldTerms(std::array::from_fn(|i| terms.0[i] && effects[i] >= floor))
 }
 
-fn fit_config(
-    iterations: usize,
-    terms: ForceFieldTerms,
-    material_rate: f64,
-    frames: Option<usize>,
-) -> MaterialFitConfig {
+/// The adjoint steps learning `terms` with the material (dm-fit's material
+/// rate, the effect rate for the terms, the whole training split).
+fn fit_config(iterations: usize, terms: ForceFieldTerms) -> MaterialFitConfig {
     MaterialFitConfig {
         iterations,
-        frames,
-        learning_rate: material_rate,
         effect_learning_rate: Some(DISCOVERY_LEARNING_RATE),
-        learn_effects: material_rate > 0.0,
         force_field_terms: terms,
         ..MaterialFitConfig::default()
     }
@@ -495,12 +500,7 @@ pub(crate) fn discover(
     if iterations > 0 {
         let mut refitted = current.clone();
         let mut done = 0;
-        let config = fit_config(
-            iterations,
-            terms,
-            MaterialFitConfig::default().learning_rate,
-            None,
-        );
+        let config = fit_config(iterations, terms);
         let fitted = fit_material(&mut refitted, bundle, &config, &mut |_| {
             done += 1;
             progress(

@@ -393,11 +393,6 @@ pub fn set_force_field_value(field: &mut dm_mpm::ForceField, i: usize, value: f6
     }
 }
 
-/// The adjoints of the seven terms, in the same order.
-fn force_field_gradients(g: &EffectGrads) -> [f64; 7] {
-    force_field_values(&g.force_field)
-}
-
 /// Appends the switched-on body-force terms' group (each divided by its
 /// [`FORCE_FIELD_SCALES`]) to `params` and their gradients to `grads`:
 /// ∂L/∂θ = scale ∂L/∂parameter.
@@ -409,7 +404,8 @@ pub fn add_force_field_group(
     grads: ParamSet,
 ) -> Result<(ParamSet, ParamSet), OptimError> {
     let values = force_field_values(&physics.effects.force_field);
-    let gradients = force_field_gradients(effect_grads);
+    // EffectGrads carries ∂L/∂(each term) in the field's own layout.
+    let gradients = force_field_values(&effect_grads.force_field);
     Ok((
         params.with_group(
             FORCE_FIELD_GROUP,

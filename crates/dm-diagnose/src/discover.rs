@@ -24,7 +24,7 @@
 //! extended model is measured on the test split, which no choice used.
 
 use crate::analysis::{match_tracks, rollout};
-use crate::{DiagnoseError, Progress, Scored, score_trial};
+use crate::{DiagnoseError, Progress, Scored, relative_reduction, score_trial};
 use dm_bundle::Bundle;
 use dm_fit::learnt_effects::{
     FORCE_FIELD_SCALES, ForceFieldTerms, admissible_force_field_value, force_field_values,
@@ -460,20 +460,15 @@ pub(crate) fn discover(
             )
         })?;
     }
-    let dropped: Vec<String> = (0..7)
-        .filter(|&i| !terms.0[i])
-        .map(|i| ForceFieldTerms::NAMES[i].to_string())
-        .collect();
-    let relative = |before: f64, after: f64| {
-        if after.is_finite() && before > 0.0 {
-            (before - after) / before
-        } else {
-            -1.0
-        }
+    let dropped = |terms: ForceFieldTerms| -> Vec<String> {
+        (0..7)
+            .filter(|&i| !terms.0[i])
+            .map(|i| ForceFieldTerms::NAMES[i].to_string())
+            .collect()
     };
-    let empty = |dropped: Vec<String>| Discovered {
+    let empty = || Discovered {
         terms: Vec::new(),
-        dropped,
+        dropped: dropped(ForceFieldTerms::NONE),
         formula: "a = 0".into(),
         force: None,
         spring: None,
@@ -489,7 +484,7 @@ pub(crate) fn discover(
     };
     if !terms.any() {
         return Ok(Discovery {
-            discovered: empty(dropped),
+            discovered: empty(),
             model: None,
         });
     }
@@ -517,6 +512,15 @@ pub(crate) fn discover(
                 material_refit_kept = true;
             }
         }
+    }
+    // A term the adjoint steps took to its bound of 0 is dropped too.
+    let learnt = force_field_values(&current.physics.effects.force_field);
+    terms = ForceFieldTerms(std::array::from_fn(|i| terms.0[i] && learnt[i] != 0.0));
+    if !terms.any() {
+        return Ok(Discovery {
+            discovered: empty(),
+            model: None,
+        });
     }
     progress("uncertainty of the discovered terms", 0, 1);
     let covariance = covariance(&current, bundle, terms)?;
@@ -570,12 +574,12 @@ pub(crate) fn discover(
         stiffness_per_s2: field.attractor_stiffness,
         point_m: std::array::from_fn(|a| about[a] + push[a] / field.attractor_stiffness),
     });
-    let train_reduction = relative(base.track_train, scored.track_train);
-    let held_out_reduction = relative(base.track_test, scored.track_test);
+    let train_reduction = relative_reduction(base.track_train, scored.track_train);
+    let held_out_reduction = relative_reduction(base.track_test, scored.track_test);
     Ok(Discovery {
         discovered: Discovered {
             terms: discovered_terms,
-            dropped,
+            dropped: dropped(terms),
             formula: formula(&field, terms, about),
             force,
             spring,

@@ -551,7 +551,7 @@ fn name(
 }
 
 /// (before − after) / before, or −1 where `after` is not finite.
-fn relative_reduction(before: f64, after: f64) -> f64 {
+pub(crate) fn relative_reduction(before: f64, after: f64) -> f64 {
     if after.is_finite() && before > 0.0 {
         (before - after) / before
     } else {

@@ -13,18 +13,20 @@
 //!    below [`MIN_TERM_EFFECT_M`] or below [`RELATIVE_TERM_EFFECT`] of the
 //!    largest is dropped and the rest regressed again, until the set stops
 //!    changing.
-//! 3. On the training split's last [`VALIDATION_SHARE`], which no
+//! 3. On the training split's last [`crate::VALIDATION_SHARE`], which no
 //!    regression saw, each kept term, weakest first, is dropped if, with
 //!    the others regressed again without it, the track error there is at
 //!    most [`VALIDATION_MARGIN`] higher.
 //!
-//! The kept terms are regressed on the whole training split, then learnt
+//! The validated terms are scored as a library candidate is (the smaller
+//! of the track error's reductions on the regression's frames and on the
+//! validation frames). They are then regressed on the whole training split, learnt
 //! through the adjoint with the material (`dm_fit`'s body-force group),
 //! reported in closed form with Gauss–Newton standard deviations, and the
 //! extended model is measured on the test split, which no choice used.
 
 use crate::analysis::{match_tracks, rollout};
-use crate::{DiagnoseError, Progress, Scored, relative_reduction, score_trial};
+use crate::{DiagnoseError, Progress, Scored, relative_reduction, score_trial, selection_frames};
 use dm_bundle::Bundle;
 use dm_fit::learnt_effects::{
     FORCE_FIELD_SCALES, ForceFieldTerms, admissible_force_field_value, force_field_values,
@@ -43,9 +45,6 @@ pub const RELATIVE_TERM_EFFECT: f64 = 0.2;
 pub const MAX_ROUNDS: usize = 4;
 /// Levenberg–Marquardt steps per regression at most.
 pub const MAX_LM_STEPS: usize = 4;
-/// The share of the training frames held out of the thresholding fits to
-/// validate each term (at least two frames).
-pub const VALIDATION_SHARE: f64 = 0.25;
 /// A term stays only if the validation frames' track error is more than
 /// this share higher without it: the simpler force wins near-ties.
 pub const VALIDATION_MARGIN: f64 = 0.03;
@@ -101,12 +100,18 @@ pub struct Discovered {
     pub rounds: usize,
     /// Adam steps learning the kept terms with the material.
     pub adjoint_iterations: usize,
-    /// Relative reductions of the track error against the fitted model
-    /// (train: what the terms were fitted on; held out: the test split).
+    /// Relative reductions of the track error against the fitted model by
+    /// the validated terms regressed on the training frames before the
+    /// validation frames: there (fit) and on the validation frames.
+    pub fit_reduction: f64,
+    pub validation_reduction: f64,
+    /// min(fit, validation), as a library candidate is scored.
+    pub score: f64,
+    /// Relative reductions by the final terms: on the training split (what
+    /// they were fitted on) and on the test split (reported, used for no
+    /// choice).
     pub train_reduction: f64,
     pub held_out_reduction: f64,
-    /// min(train, held-out), as a library candidate is scored.
-    pub score: f64,
     pub track_test_before: f64,
     pub track_test_after: f64,
     /// Whether the adjoint steps learning the terms with the material were
@@ -386,21 +391,9 @@ pub(crate) fn discover(
         attractor_point: about,
         ..dm_mpm::ForceField::default()
     };
-    let train_end = bundle.meta.split.train[1];
-    let validation = ((VALIDATION_SHARE * train_end as f64).round() as usize).max(2);
-    let fit_end = train_end.saturating_sub(validation).max(2);
-    let validation_error = |m: &WorldModel| {
-        let s = score_trial(m, bundle);
-        let frames = s
-            .track_per_frame
-            .get(fit_end..train_end)
-            .unwrap_or_default();
-        if frames.is_empty() {
-            f64::INFINITY
-        } else {
-            frames.iter().sum::<f64>() / frames.len() as f64
-        }
-    };
+    let frames = selection_frames(bundle.meta.split.train);
+    let fit_end = frames.fit[1];
+    let train_end = frames.validation[1];
     let mut terms = ForceFieldTerms::ALL;
     let mut rounds = 0;
     while rounds < MAX_ROUNDS && terms.any() {
@@ -424,6 +417,9 @@ pub(crate) fn discover(
         }
         terms = kept;
     }
+    // The model the validation frames judge (the fitted model's own errors
+    // until a term is kept).
+    let mut selected = base.clone();
     // Validation: weakest first, a term goes if, with the others regressed
     // again without it, the frames no regression saw are predicted within
     // VALIDATION_MARGIN of as well.
@@ -433,7 +429,7 @@ pub(crate) fn discover(
         let effects = term_effects(&values, terms, &columns, residual.len());
         let mut order: Vec<usize> = terms.indices().collect();
         order.sort_by(|&a, &b| effects[a].total_cmp(&effects[b]));
-        let mut with = validation_error(&current);
+        selected = score_trial(&current, bundle);
         for (k, &i) in order.iter().enumerate() {
             progress("validating the discovered terms", k, order.len());
             let mut without = current.clone();
@@ -443,10 +439,10 @@ pub(crate) fn discover(
             if rest.any() {
                 regress(&mut without, bundle, rest, fit_end, &mut |_| {})?;
             }
-            let error = validation_error(&without);
-            if error <= with * (1.0 + VALIDATION_MARGIN) {
+            let scored = score_trial(&without, bundle);
+            if scored.track_validation <= selected.track_validation * (1.0 + VALIDATION_MARGIN) {
                 current = without;
-                with = error;
+                selected = scored;
                 terms = rest;
             }
         }
@@ -475,9 +471,11 @@ pub(crate) fn discover(
         fitted_about_m: about,
         rounds,
         adjoint_iterations: iterations,
+        fit_reduction: 0.0,
+        validation_reduction: 0.0,
+        score: 0.0,
         train_reduction: 0.0,
         held_out_reduction: 0.0,
-        score: 0.0,
         track_test_before: base.track_test,
         track_test_after: base.track_test,
         material_refit_kept: false,
@@ -574,8 +572,8 @@ pub(crate) fn discover(
         stiffness_per_s2: field.attractor_stiffness,
         point_m: std::array::from_fn(|a| about[a] + push[a] / field.attractor_stiffness),
     });
-    let train_reduction = relative_reduction(base.track_train, scored.track_train);
-    let held_out_reduction = relative_reduction(base.track_test, scored.track_test);
+    let fit_reduction = relative_reduction(base.track_fit, selected.track_fit);
+    let validation_reduction = relative_reduction(base.track_validation, selected.track_validation);
     Ok(Discovery {
         discovered: Discovered {
             terms: discovered_terms,
@@ -586,9 +584,11 @@ pub(crate) fn discover(
             fitted_about_m: about,
             rounds,
             adjoint_iterations: iterations,
-            train_reduction,
-            held_out_reduction,
-            score: train_reduction.min(held_out_reduction),
+            fit_reduction,
+            validation_reduction,
+            score: fit_reduction.min(validation_reduction),
+            train_reduction: relative_reduction(base.track_train, scored.track_train),
+            held_out_reduction: relative_reduction(base.track_test, scored.track_test),
             track_test_before: base.track_test,
             track_test_after: scored.track_test,
             material_refit_kept,

@@ -5,20 +5,24 @@
 //!   minus simulated) and the learned residual's Δv.
 //! * **Name** ([`candidates`], [`signatures`]): each library effect is
 //!   added to the fitted model (material and gains held fixed), its
-//!   parameter chosen on the training frames, and scored by the relative
-//!   reduction of the *test-split* track error it brings; the signatures
-//!   in the residual accelerations are printed as evidence. The cause is
-//!   the best candidate when its score clears [`NONE_THRESHOLD`].
+//!   parameter chosen on the training split's first frames, and scored by
+//!   the relative reduction of the track error it brings there and on the
+//!   split's last quarter ([`selection_frames`]); the signatures in the
+//!   residual accelerations are printed as evidence. The cause is the best
+//!   candidate when its score clears [`NONE_THRESHOLD`].
+//! * **Detectability** ([`detectability`]): the smallest magnitude of each
+//!   library effect that this clip would reveal.
 //! * **Extend / Measure**: the chosen effect's parameter is refined on the
 //!   training frames, the material refitted with the effect in place
 //!   (gradients through the differentiable simulator), and the extended
-//!   model written with its held-out gain.
+//!   model written with its gain on the test split, which no choice used.
 //!
 //! Output contract (docs/diagnose.md): `diagnosis.json` and `report.md`
 //! with PNG plots.
 
 pub mod analysis;
 pub mod candidates;
+pub mod detectability;
 pub mod discover;
 mod plots;
 mod report;
@@ -34,8 +38,9 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// A cause is named only when its score (the smaller of the train and
-/// held-out relative reductions of the track error) is at least this.
+/// A cause is named only when its score (the smaller of the relative
+/// reductions of the track error on the fit and the validation frames) is
+/// at least this.
 /// Null scenes scored ≤ 0.003, undetected effects ≤ 0.05 and named ones
 /// 0.25–0.38 (docs/diagnose.md, docs/RESULTS.md).
 pub const NONE_THRESHOLD: f64 = 0.10;
@@ -79,6 +84,15 @@ pub struct DiagnoseOptions {
     #[arg(long, default_value_t = DEFAULT_DISCOVER_ITERS)]
     #[serde(default = "default_discover_iters")]
     pub discover_iters: usize,
+    /// Bisection steps of each library effect's detection limit
+    /// (0: no limits).
+    #[arg(long, default_value_t = detectability::DEFAULT_DETECT_STEPS)]
+    #[serde(default = "default_detect_steps")]
+    pub detect_steps: usize,
+}
+
+fn default_detect_steps() -> usize {
+    detectability::DEFAULT_DETECT_STEPS
 }
 
 /// Adam steps learning the discovered body force with the material.
@@ -98,6 +112,7 @@ impl Default for DiagnoseOptions {
             none_threshold: NONE_THRESHOLD,
             fit_candidates: false,
             discover_iters: DEFAULT_DISCOVER_ITERS,
+            detect_steps: detectability::DEFAULT_DETECT_STEPS,
         }
     }
 }
@@ -106,13 +121,21 @@ impl Default for DiagnoseOptions {
 #[derive(Clone, Debug, Serialize)]
 pub struct CandidateScore {
     pub name: String,
-    /// min(held-out reduction, train reduction): what the candidate explains
-    /// on both the frames that chose its parameter and the held-out ones.
+    /// min(validation reduction, fit reduction): what the candidate
+    /// explains on both the frames that chose its parameter and the
+    /// validation frames after them. Names the cause.
     pub score: f64,
-    /// Relative reduction of the test-split track error (held out).
+    /// Relative reduction of the track error on the training frames that
+    /// chose the parameter (all but the training split's last quarter).
+    pub fit_reduction: f64,
+    /// Relative reduction of the track error on the training split's last
+    /// quarter, which no parameter choice saw.
+    pub validation_reduction: f64,
+    /// Relative reduction of the test-split track error (reported, used for
+    /// no choice).
     pub held_out_reduction: f64,
-    /// Relative reduction of the train-split track error (what chose the
-    /// parameter; reported, not used for naming).
+    /// Relative reduction of the whole training split's track error
+    /// (reported, used for no choice).
     pub train_reduction: f64,
     pub parameters: BTreeMap<String, f64>,
     pub signature: String,
@@ -162,6 +185,9 @@ pub struct Diagnosis {
     pub discovered: Option<discover::Discovered>,
     /// Where the model with the discovered terms was written.
     pub discovered_model: Option<String>,
+    /// Each library effect's detection limit on this clip (empty with
+    /// `--detect-steps 0`).
+    pub detectability: BTreeMap<String, detectability::Limit>,
     /// The run record: the options this diagnosis ran with.
     pub options: DiagnoseOptions,
 }
@@ -219,9 +245,38 @@ struct TrialsFile<'a> {
     candidate_fits: &'a [TrialRecord],
 }
 
-/// Track / Chamfer of a rollout over train and test (NaN rows if it diverged).
+/// The share of the training frames held back from every choice of a
+/// parameter (a candidate's trial, a discovered term's coefficient): the
+/// candidates are scored there, so the test split is left to the reported
+/// gain alone.
+pub const VALIDATION_SHARE: f64 = 0.25;
+
+/// The training split cut into the frames that choose parameters and the
+/// validation frames after them (the last [`VALIDATION_SHARE`]; two frames
+/// at least each where the split has four).
+pub fn selection_frames(train: [usize; 2]) -> SelectionFrames {
+    let [start, end] = train;
+    let length = end.saturating_sub(start);
+    let validation = ((VALIDATION_SHARE * length as f64).round() as usize).max(2);
+    let fit_end = end.saturating_sub(validation).max(start + 2).min(end);
+    SelectionFrames {
+        fit: [start, fit_end],
+        validation: [fit_end, end],
+    }
+}
+
+/// Frame ranges [start, end) of [`selection_frames`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct SelectionFrames {
+    pub fit: [usize; 2],
+    pub validation: [usize; 2],
+}
+
+/// Track / Chamfer of a rollout over the splits (infinite if it diverged).
 #[derive(Clone, Debug)]
 pub(crate) struct Scored {
+    track_fit: f64,
+    track_validation: f64,
     track_train: f64,
     track_test: f64,
     chamfer_test: f64,
@@ -232,8 +287,11 @@ fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout),
     let run = rollout(model, bundle)?;
     let errors = analysis::errors(model, bundle, &run.positions);
     let split = &bundle.meta.split;
+    let frames = selection_frames(split.train);
     Ok((
         Scored {
+            track_fit: split_mean(&errors.track, frames.fit),
+            track_validation: split_mean(&errors.track, frames.validation),
             track_train: split_mean(&errors.track, split.train),
             track_test: split_mean(&errors.track, split.test),
             chamfer_test: split_mean(&errors.chamfer, split.test),
@@ -252,21 +310,35 @@ pub(crate) fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
 }
 
 /// The track error of a model's open-loop rollout on a bundle: the means
-/// over the bundle's train and test splits, metres.
+/// over the bundle's train and test splits and over the training split's
+/// two parts of [`selection_frames`], metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SplitTrackError {
     pub train: f64,
     pub test: f64,
+    pub fit: f64,
+    pub validation: f64,
+}
+
+impl SplitTrackError {
+    /// The diagnosis's score of `self` against `base`: the smaller of the
+    /// relative reductions on the fit and on the validation frames.
+    pub fn score_against(&self, base: &SplitTrackError) -> f64 {
+        relative_reduction(base.fit, self.fit)
+            .min(relative_reduction(base.validation, self.validation))
+    }
 }
 
 /// `model` rolled out on `bundle` and scored as the diagnosis scores a
-/// candidate: both splits' mean track error, infinite where the rollout
+/// candidate: the splits' mean track error, infinite where the rollout
 /// diverges or the model cannot be built.
 pub fn split_track_error(model: &WorldModel, bundle: &Bundle) -> SplitTrackError {
     let scored = score_trial(model, bundle);
     SplitTrackError {
         train: scored.track_train,
         test: scored.track_test,
+        fit: scored.track_fit,
+        validation: scored.track_validation,
     }
 }
 
@@ -274,6 +346,8 @@ impl Scored {
     /// What a diverging or failed trial scores.
     fn failed() -> Self {
         Scored {
+            track_fit: f64::INFINITY,
+            track_validation: f64::INFINITY,
             track_train: f64::INFINITY,
             track_test: f64::INFINITY,
             chamfer_test: f64::INFINITY,
@@ -289,6 +363,7 @@ pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 /// and writes `out/diagnosis.json`, `out/report.md`, plots and, when a
 /// cause is named, `out/extended_model/model.json`: [`show`] where the
 /// model departs, [`name`] the cause, [`extend`] the model with it,
+/// [`detection_limits`] of the library's effects in this clip,
 /// [`measure`] the gain, and [`discover_outside_library`].
 pub fn diagnose(
     model_dir: &Path,
@@ -312,6 +387,15 @@ pub fn diagnose(
     let shown = show(&model, &bundle, progress)?;
     let mut named = name(model_dir, &model, &bundle, &shown, options, out, progress)?;
     let (extended, refit) = extend(&model, &model_path, &bundle, &mut named, options, progress)?;
+    let limits = detection_limits(
+        &model,
+        &bundle,
+        &shown,
+        &named,
+        extended.as_ref(),
+        options,
+        progress,
+    )?;
     let measured = measure(out, &shown.base, extended.as_ref())?;
     let truth_cmp = truth_value.as_ref().map(|t| {
         compare_truth(
@@ -347,6 +431,7 @@ pub fn diagnose(
         refit,
         discovered,
         discovered_model,
+        detectability: limits,
         options: options.clone(),
     };
     progress("plots and report", 0, 1);
@@ -414,22 +499,25 @@ fn show(
     let per_track_test = per_track_error(&matched, split.test);
     let regions_test = region_errors(bundle, &per_track_test, up, axis);
     let samples = analysis::residual_accelerations(&matched, bundle.meta.fps);
-    let train_samples: Vec<_> = samples
+    // The signatures orient the trials, so they read only the frames that
+    // choose the trials' parameters.
+    let fit_end = selection_frames(split.train).fit[1];
+    let fit_samples: Vec<_> = samples
         .iter()
         .copied()
-        .filter(|s| s.frame + analysis::ACCEL_STRIDE < split.train[1])
+        .filter(|s| s.frame + analysis::ACCEL_STRIDE < fit_end)
         .collect();
     let near_hand = near_hand_tracks(bundle);
-    let hand_centroid: Vec<[f64; 3]> = (0..split.train[1])
+    let hand_centroid: Vec<[f64; 3]> = (0..fit_end)
         .map(|t| centroid(&dm_model::hand_anchors(bundle, t)))
         .collect();
-    let train_matched = analysis::Matched {
-        observed: matched.observed[..split.train[1].min(matched.observed.len())].to_vec(),
-        simulated: matched.simulated[..split.train[1].min(matched.simulated.len())].to_vec(),
+    let fit_matched = analysis::Matched {
+        observed: matched.observed[..fit_end.min(matched.observed.len())].to_vec(),
+        simulated: matched.simulated[..fit_end.min(matched.simulated.len())].to_vec(),
     };
     let signatures = signatures::signatures(
-        &train_samples,
-        &train_matched,
+        &fit_samples,
+        &fit_matched,
         &near_hand,
         &hand_centroid,
         up,
@@ -458,6 +546,8 @@ struct Named {
     confidence: f64,
     trial_records: Vec<TrialRecord>,
     fit_records: Vec<TrialRecord>,
+    /// Every trial's rollout (the detection limits score against them).
+    trial_runs: Vec<detectability::TrialRun>,
 }
 
 /// "Name": every candidate's trials scored on the training frames (with
@@ -481,14 +571,27 @@ fn name(
     let total = all_trials.len();
     let mut best_per_candidate: BTreeMap<&'static str, (Trial, Scored)> = BTreeMap::new();
     let mut trial_records = Vec::with_capacity(total);
+    let mut trial_runs = Vec::with_capacity(total);
     for (i, trial) in all_trials.into_iter().enumerate() {
         progress(&format!("candidate {}", trial.candidate.name()), i, total);
-        let scored = score_trial(&trial.model, bundle);
+        // A diverging or unbuildable trial scores infinity (e.g. a
+        // stiffness needing more substeps than allowed).
+        let scored = match score_model(&trial.model, bundle) {
+            Ok((scored, run)) => {
+                trial_runs.push(detectability::TrialRun {
+                    candidate: trial.candidate,
+                    parameters: trial.parameters.clone(),
+                    positions: run.positions,
+                });
+                scored
+            }
+            Err(_) => Scored::failed(),
+        };
         let name = trial.candidate.name();
         trial_records.push(TrialRecord::new(name, &trial.parameters, &scored));
         let better = best_per_candidate
             .get(name)
-            .is_none_or(|(_, s)| scored.track_train < s.track_train);
+            .is_none_or(|(_, s)| scored.track_fit < s.track_fit);
         if better {
             best_per_candidate.insert(name, (trial, scored));
         }
@@ -516,16 +619,19 @@ fn name(
         .filter_map(|c| {
             let (trial, scored) = best_per_candidate.get(c.name())?;
             let (signature, signature_agrees) = c.signature_text(&shown.signatures);
-            let held_out = relative_reduction(base.track_test, scored.track_test);
-            let train_reduction = relative_reduction(base.track_train, scored.track_train);
+            let fit_reduction = relative_reduction(base.track_fit, scored.track_fit);
+            let validation_reduction =
+                relative_reduction(base.track_validation, scored.track_validation);
             Some(CandidateScore {
                 name: c.name().into(),
                 // A real effect explains error where its parameter was fitted
-                // and on the held-out frames; a term that only reshuffles the
-                // error of a misfit model helps on one split at most.
-                score: held_out.min(train_reduction),
-                held_out_reduction: held_out,
-                train_reduction,
+                // and on the frames after them; a term that only reshuffles the
+                // error of a misfit model helps on one part at most.
+                score: validation_reduction.min(fit_reduction),
+                fit_reduction,
+                validation_reduction,
+                held_out_reduction: relative_reduction(base.track_test, scored.track_test),
+                train_reduction: relative_reduction(base.track_train, scored.track_train),
                 parameters: trial.parameters.clone(),
                 signature,
                 signature_agrees,
@@ -547,6 +653,7 @@ fn name(
         cause,
         trial_records,
         fit_records,
+        trial_runs,
     })
 }
 
@@ -675,6 +782,56 @@ fn measure(
         after_per_frame: Some(scored.track_per_frame.clone()),
         extended_model: Some(dir.display().to_string()),
     })
+}
+
+/// "Detectability" (`detectability.rs`): each library effect's limit,
+/// injected into the fitted model or, when a cause is named, into the
+/// extended model (its trials rolled out again there); nothing with
+/// `--detect-steps 0`.
+fn detection_limits(
+    model: &WorldModel,
+    bundle: &Bundle,
+    shown: &Shown,
+    named: &Named,
+    extended: Option<&Extension>,
+    options: &DiagnoseOptions,
+    progress: Progress<'_>,
+) -> Result<BTreeMap<String, detectability::Limit>, DiagnoseError> {
+    if options.detect_steps == 0 {
+        return Ok(BTreeMap::new());
+    }
+    let limits = |model: &WorldModel,
+                  positions: &[Vec<[f32; 3]>],
+                  runs: &[detectability::TrialRun],
+                  progress: Progress<'_>| {
+        detectability::detectability(
+            model,
+            bundle,
+            positions,
+            runs,
+            options.none_threshold,
+            options.detect_steps,
+            progress,
+        )
+    };
+    match extended {
+        Some((extended, _, _)) => {
+            let cause = Candidate::ALL
+                .iter()
+                .copied()
+                .find(|c| c.name() == named.cause);
+            let runs =
+                detectability::trial_runs(extended, bundle, &shown.signatures, cause, progress);
+            let positions = rollout(extended, bundle)?.positions;
+            limits(extended, &positions, &runs, progress)
+        }
+        None => limits(
+            model,
+            &shown.base_run.positions,
+            &named.trial_runs,
+            progress,
+        ),
+    }
 }
 
 /// "Discover" (`discover.rs`): the body force outside the library, its
@@ -917,4 +1074,21 @@ pub fn model_with(
     parameters: &BTreeMap<String, f64>,
 ) -> WorldModel {
     apply(base, candidate, parameters)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_frames_are_the_training_splits_last_quarter() {
+        let frames = selection_frames([0, 25]);
+        assert_eq!(frames.fit, [0, 19]);
+        assert_eq!(frames.validation, [19, 25]);
+        // At least two frames each, and never past the split.
+        let short = selection_frames([3, 7]);
+        assert_eq!((short.fit, short.validation), ([3, 5], [5, 7]));
+        let tiny = selection_frames([0, 3]);
+        assert_eq!((tiny.fit, tiny.validation), ([0, 2], [2, 3]));
+    }
 }

@@ -2,6 +2,7 @@
 
 use crate::analysis::Rollout;
 use crate::candidates::Candidate;
+use crate::detectability::{Limit, Stronger};
 use crate::discover::Discovered;
 use crate::plots::PlotFile;
 use crate::{DiagnoseError, Diagnosis};
@@ -34,7 +35,8 @@ pub(crate) fn write_report(
         let _ = writeln!(
             s,
             "**Cause: none** (confidence {:.2}). No candidate explains at least {:.0} % of the \
-             held-out track error; the best explains {:.1} %.\n",
+             track error on both the frames that chose its parameter and the validation frames \
+             after them; the best explains {:.1} %.\n",
             d.confidence,
             100.0 * d.threshold,
             100.0 * d.candidates.first().map_or(0.0, |c| c.score)
@@ -70,15 +72,20 @@ pub(crate) fn write_report(
             d.extended_model.as_deref().unwrap_or("—")
         );
     }
+    if !d.detectability.is_empty() {
+        let _ = writeln!(s, "{}\n", ruled_out_line(d));
+    }
     if let Some(found) = &d.discovered
         && found.score >= d.threshold
     {
         let _ = writeln!(
             s,
-            "**Outside the library:** a body force `{}` explains {:.0} % of the training and \
-             {:.0} % of the held-out track error (section \"Discovered term\").\n",
+            "**Outside the library:** a body force `{}` explains {:.0} % of the fit frames' and \
+             {:.0} % of the validation frames' track error, {:.0} % of the held-out test error \
+             (section \"Discovered term\").\n",
             found.formula,
-            100.0 * found.train_reduction,
+            100.0 * found.fit_reduction,
+            100.0 * found.validation_reduction,
             100.0 * found.held_out_reduction
         );
     }
@@ -95,24 +102,31 @@ pub(crate) fn write_report(
     }
     let _ = writeln!(s, "## Candidates\n");
     let how = if d.candidates_fitted {
-        "Each effect's best trial (parameter chosen on the training frames with the fitted \
+        "Each effect's best trial (parameter chosen on the fit frames with the fitted \
          model's material and gains) was then fitted from the start with the fitted model's own \
-         dm-fit options (`--fit-candidates`), and that fit compared with the fitted model on the \
-         training frames (train reduction) and the **held-out** test frames"
+         dm-fit options (`--fit-candidates`), and that fit compared with the fitted model"
     } else {
-        "Each effect was added to the fitted model (material and gains held), its parameter \
-         chosen on the training frames (train reduction), and checked on the **held-out** \
-         test frames"
+        "Each effect was added to the fitted model (material and gains held) and its \
+         parameter chosen on the fit frames"
     };
+    let frames = crate::selection_frames(bundle.meta.split.train);
     let _ = writeln!(
         s,
-        "{how}; score = the smaller of the two shares of track error removed.\n"
+        "{how}. Fit frames {}–{}, validation frames {}–{} (the training split's last \
+         quarter, which no choice saw); score = the smaller of the two shares of track error \
+         removed. The test frames ({}–{}) are only reported.\n",
+        frames.fit[0],
+        frames.fit[1].saturating_sub(1),
+        frames.validation[0],
+        frames.validation[1].saturating_sub(1),
+        bundle.meta.split.test[0],
+        bundle.meta.split.test[1].saturating_sub(1),
     );
     let _ = writeln!(
         s,
-        "| candidate | score | held-out reduction | train reduction | parameters | signature |"
+        "| candidate | score | fit | validation | test (reported) | parameters | signature |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|");
     for c in &d.candidates {
         let params: Vec<String> = c
             .parameters
@@ -127,13 +141,14 @@ pub(crate) fn write_report(
         };
         let _ = writeln!(
             s,
-            "| {}{}{} | {:+.3} | {:+.3} | {:+.3} | {} | {}{} |",
+            "| {}{}{} | {:+.3} | {:+.3} | {:+.3} | {:+.3} | {} | {}{} |",
             if c.name == d.cause { "**" } else { "" },
             c.name,
             if c.name == d.cause { "**" } else { "" },
             c.score,
+            c.fit_reduction,
+            c.validation_reduction,
             c.held_out_reduction,
-            c.train_reduction,
             params.join(", "),
             c.signature,
             mark
@@ -143,6 +158,7 @@ pub(crate) fn write_report(
     for p in plots.iter().filter(|p| p.file == "candidates.png") {
         let _ = writeln!(s, "![{}]({})\n\n{}\n", p.file, p.file, p.caption);
     }
+    write_detectability(&mut s, d);
     let _ = writeln!(s, "## Where the fitted model is wrong\n");
     let _ = writeln!(s, "| region (frame-0 thirds) | test track error | points |");
     let _ = writeln!(s, "|---|---|---|");
@@ -265,4 +281,135 @@ fn write_discovered(s: &mut String, found: &Discovered, model: Option<&str>) {
             found.dropped.join(", ")
         }
     );
+}
+
+/// A magnitude with the digits its size needs.
+fn magnitude_text(value: f64) -> String {
+    if value >= 100.0 {
+        format!("{value:.0}")
+    } else if value >= 1.0 {
+        format!("{value:.2}")
+    } else {
+        format!("{value:.3}")
+    }
+}
+
+/// `≥`, or `≤` where smaller magnitudes are stronger effects.
+fn stronger_sign(l: &Limit) -> &'static str {
+    match l.stronger {
+        Stronger::Above => "≥",
+        Stronger::Below => "≤",
+    }
+}
+
+/// The search range, weakest end first.
+fn searched_text(l: &Limit) -> String {
+    let [low, high] = l.searched.map(magnitude_text);
+    match l.stronger {
+        Stronger::Above => format!("{low}–{high} {}", l.unit),
+        Stronger::Below => format!("{high} down to {low} {}", l.unit),
+    }
+}
+
+/// One line for the answer: which effects this clip rules out above which
+/// magnitude (for a named cause: which others it would have shown), and
+/// which it cannot show at all.
+fn ruled_out_line(d: &Diagnosis) -> String {
+    let shown: Vec<String> = d
+        .detectability
+        .iter()
+        .filter(|(name, _)| **name != d.cause)
+        .filter_map(|(name, l)| {
+            Some(format!(
+                "`{name}` {} {} {}",
+                stronger_sign(l),
+                magnitude_text(l.min_magnitude?),
+                l.unit
+            ))
+        })
+        .collect();
+    let hidden: Vec<String> = d
+        .detectability
+        .iter()
+        .filter(|(_, l)| l.min_magnitude.is_none())
+        .map(|(name, l)| {
+            let next = l.next_action.as_ref().map_or(String::new(), |n| {
+                format!(
+                    "; to test it, film {}: it reveals {} {} {}",
+                    n.action,
+                    stronger_sign(l),
+                    magnitude_text(n.min_magnitude),
+                    l.unit
+                )
+            });
+            format!("`{name}` ({}{next})", searched_text(l))
+        })
+        .collect();
+    let mut line = if shown.is_empty() {
+        "**Ruled out:** nothing; this clip would reveal none of the library's effects.".to_string()
+    } else {
+        format!(
+            "**Ruled out** (this clip would have revealed them): {}.",
+            shown.join(", ")
+        )
+    };
+    if !hidden.is_empty() {
+        line.push_str(&format!(
+            " **Not testable in this clip** at any magnitude tried: {}.",
+            hidden.join("; ")
+        ));
+    }
+    line
+}
+
+/// The "What this clip can show" section: each library effect's
+/// detection limit (crate::detectability).
+fn write_detectability(s: &mut String, d: &Diagnosis) {
+    if d.detectability.is_empty() {
+        return;
+    }
+    let _ = writeln!(s, "## What this clip can show\n");
+    let _ = writeln!(
+        s,
+        "The weakest magnitude of each effect that this clip reveals: the effect injected \
+         into the fitted model (the extended model when a cause is named), its displacement \
+         added to the recorded tracks (their noise and the model's misfit stay in), and the \
+         candidate's trials scored as above; scanned, then bisected on a log scale. Magnitudes \
+         in the units of `dm-synth --effect NAME:MAGNITUDE`. The model absorbed none of the \
+         injected effect, as a fit would absorb part of it, so the limits are floors. For an \
+         effect this clip cannot reveal, variants of the recorded hand action are simulated \
+         with the model (observations: its rollout plus this clip's residual) and the one \
+         revealing the weakest magnitude is the next experiment.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| effect | weakest revealed | searched | score there | next experiment |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|");
+    for (name, l) in &d.detectability {
+        let _ = writeln!(
+            s,
+            "| {name} | {} | {} | {:+.3} | {} |",
+            l.min_magnitude.map_or("not revealed".into(), |m| format!(
+                "{} {} {}",
+                stronger_sign(l),
+                magnitude_text(m),
+                l.unit
+            )),
+            searched_text(l),
+            l.score,
+            match (&l.next_action, l.min_magnitude) {
+                (_, Some(_)) => "—".to_string(),
+                (Some(n), None) => format!(
+                    "{}: {} {} {}",
+                    n.action,
+                    stronger_sign(l),
+                    magnitude_text(n.min_magnitude),
+                    l.unit
+                ),
+                (None, None) => "no variant tried reveals it".to_string(),
+            }
+        );
+    }
+    let _ = writeln!(s);
 }

@@ -6,10 +6,10 @@
 //! than the truth's, needs about 2.5 times the truth's push (measured at
 //! the evaluation's settings instead, docs/diagnose.md).
 
+mod common;
+
 use dm_bundle::Bundle;
 use dm_diagnose::{DiagnoseOptions, diagnose};
-use dm_fit::material_fit::{MaterialFitConfig, fit_material};
-use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Action, Preset, SynthConfig};
 
 /// The direction bar of the out-of-library evaluation (docs/diagnose.md).
@@ -27,19 +27,7 @@ fn a_hidden_wind_is_discovered_along_its_direction() {
     };
     let truth = dm_synth::generate(&config, &scene, &truth_path, &mut |_, _, _| {}).expect("scene");
     let bundle = Bundle::open(&scene).expect("bundle");
-    let options = ModelOptions {
-        residual: ResidualKind::None,
-        ..ModelOptions::default()
-    };
-    let mut model = WorldModel::from_bundle(&bundle, &options).expect("model");
-    let fit = MaterialFitConfig {
-        iterations: 8,
-        ..MaterialFitConfig::default()
-    };
-    fit_material(&mut model, &bundle, &fit, &mut |_| {}).expect("base fit");
-    let model_dir = dir.path().join("model");
-    std::fs::create_dir_all(&model_dir).expect("model dir");
-    dm_bundle::write_json_atomic(&model_dir.join("model.json"), &model).expect("model.json");
+    let model_dir = common::fit_physics_only(&bundle, 8, &dir.path().join("model"));
 
     let out = dir.path().join("diagnosis");
     let d = diagnose(

@@ -54,53 +54,72 @@ pub fn frame_errors(
     surface_count: usize,
     tracks: &Tracks,
 ) -> FrameErrors {
-    let observed = |t: usize, k: usize| {
-        let p = &tracks.object_points;
-        [
-            p[[t, k, 0]] as f64,
-            p[[t, k, 1]] as f64,
-            p[[t, k, 2]] as f64,
-        ]
-    };
-    let n_tracks = tracks.object_points.shape()[1];
     let first: Vec<[f64; 3]> = rollout
         .first()
         .map(|frame| frame.iter().map(to_f64).collect())
         .unwrap_or_default();
     let matched = match_tracks(&first, tracks);
-    let mut track = Vec::with_capacity(rollout.len());
-    let mut chamfer = Vec::with_capacity(rollout.len());
-    for (t, frame) in rollout.iter().take(tracks.frame_count()).enumerate() {
-        let visible: Vec<usize> = (0..n_tracks)
-            .filter(|&k| tracks.object_visibility[[t, k]])
-            .collect();
-        let valid: Vec<(usize, usize)> = visible
-            .iter()
-            .filter(|&&k| tracks.object_motion_valid[[t, k]])
-            .filter_map(|&k| Some((k, matched[k]?)))
-            .filter(|&(_, i)| i < frame.len())
-            .collect();
-        track.push(if valid.is_empty() {
-            f64::NAN
-        } else {
-            valid
+    let track = track_errors(rollout, tracks, &matched);
+    let n_tracks = tracks.object_points.shape()[1];
+    let chamfer = rollout
+        .iter()
+        .take(tracks.frame_count())
+        .enumerate()
+        .map(|(t, frame)| {
+            let targets: Vec<[f64; 3]> = (0..n_tracks)
+                .filter(|&k| tracks.object_visibility[[t, k]])
+                .map(|k| observed(tracks, t, k))
+                .collect();
+            if targets.is_empty() {
+                return f64::NAN;
+            }
+            let surface: Vec<[f64; 3]> = frame[..surface_count.min(frame.len())]
                 .iter()
-                .map(|&(k, i)| distance(to_f64(&frame[i]), observed(t, k)))
-                .sum::<f64>()
-                / valid.len() as f64
-        });
-        if visible.is_empty() {
-            chamfer.push(f64::NAN);
-            continue;
-        }
-        let surface: Vec<[f64; 3]> = frame[..surface_count.min(frame.len())]
-            .iter()
-            .map(to_f64)
-            .collect();
-        let targets: Vec<[f64; 3]> = visible.iter().map(|&k| observed(t, k)).collect();
-        chamfer.push(chamfer_to(&surface, &targets));
-    }
+                .map(to_f64)
+                .collect();
+            chamfer_to(&surface, &targets)
+        })
+        .collect();
     FrameErrors { track, chamfer }
+}
+
+fn observed(tracks: &Tracks, t: usize, k: usize) -> [f64; 3] {
+    let p = &tracks.object_points;
+    [p[[t, k, 0]], p[[t, k, 1]], p[[t, k, 2]]].map(f64::from)
+}
+
+/// The track term of [`frame_errors`] with the particles each tracked
+/// point is matched to given ([`match_tracks`]): per frame, the mean
+/// distance from each valid point to its particle (NaN where none is
+/// valid).
+pub fn track_errors(
+    rollout: &[Vec<[f32; 3]>],
+    tracks: &Tracks,
+    matched: &[Option<usize>],
+) -> Vec<f64> {
+    let n_tracks = tracks.object_points.shape()[1];
+    rollout
+        .iter()
+        .take(tracks.frame_count())
+        .enumerate()
+        .map(|(t, frame)| {
+            let valid: Vec<(usize, usize)> = (0..n_tracks)
+                .filter(|&k| tracks.object_visibility[[t, k]])
+                .filter(|&k| tracks.object_motion_valid[[t, k]])
+                .filter_map(|k| Some((k, matched.get(k).copied().flatten()?)))
+                .filter(|&(_, i)| i < frame.len())
+                .collect();
+            if valid.is_empty() {
+                f64::NAN
+            } else {
+                valid
+                    .iter()
+                    .map(|&(k, i)| distance(to_f64(&frame[i]), observed(tracks, t, k)))
+                    .sum::<f64>()
+                    / valid.len() as f64
+            }
+        })
+        .collect()
 }
 
 /// The particle each tracked point is matched to: its Euclidean nearest

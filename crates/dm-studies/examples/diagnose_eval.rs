@@ -41,7 +41,7 @@ struct Args {
     first_seed: u64,
     /// Take every SHARDS-th scene from the SHARD-th (e.g. 0/2), so several
     /// processes can share one OUT_DIR.
-    #[arg(value_name = "SHARD/SHARDS", value_parser = parse_shard)]
+    #[arg(value_name = "SHARD/SHARDS", value_parser = dm_studies::parse_shard)]
     shard: Option<(usize, usize)>,
     /// Score the candidates by fits from the start.
     #[arg(long)]
@@ -52,18 +52,6 @@ struct Args {
     // A scene or fit setting changed (scene directories get its suffix).
     #[command(flatten)]
     variant: SceneVariant,
-}
-
-fn parse_shard(text: &str) -> Result<(usize, usize), String> {
-    let (shard, shards) = text.split_once('/').ok_or("SHARD/SHARDS, e.g. 0/2")?;
-    let shard: usize = shard.parse().map_err(|e| format!("SHARD `{shard}`: {e}"))?;
-    let shards: usize = shards
-        .parse()
-        .map_err(|e| format!("SHARDS `{shards}`: {e}"))?;
-    if shard >= shards {
-        return Err(format!("SHARD {shard} must be below SHARDS {shards}"));
-    }
-    Ok((shard, shards))
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -84,8 +72,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let (shard, shards) = shard.unwrap_or((0, 1));
     std::fs::create_dir_all(&out)?;
+    // The naming is evaluated here; the body-force discovery has its own
+    // evaluation (discover_eval) and would only add its minute per scene.
     let options = DiagnoseOptions {
         fit_candidates,
+        discover_iters: 0,
         ..DiagnoseOptions::default()
     };
     let mut results: Vec<SceneResult> = Vec::new();

@@ -22,15 +22,10 @@ fn main() -> anyhow::Result<()> {
     let out = PathBuf::from(args.first().ok_or_else(|| anyhow::anyhow!("OUT_DIR"))?);
     let per_effect: u64 = args.get(1).map_or(Ok(4), |a| a.parse())?;
     let first_seed: u64 = args.get(2).map_or(Ok(7000), |a| a.parse())?;
-    let (shard, shards) = match args.get(3) {
-        Some(s) => {
-            let (a, b) = s
-                .split_once('/')
-                .ok_or_else(|| anyhow::anyhow!("SHARD/SHARDS"))?;
-            (a.parse::<usize>()?, b.parse::<usize>()?)
-        }
-        None => (0, 1),
-    };
+    let (shard, shards) = args
+        .get(3)
+        .map_or(Ok((0, 1)), |s| dm_studies::parse_shard(s))
+        .map_err(anyhow::Error::msg)?;
     std::fs::create_dir_all(&out)?;
     let fit = evaluation_fit_options();
     let options = DiagnoseOptions::default();

@@ -88,6 +88,12 @@ pub struct SceneResult {
     /// (m; the truth file's `effect_displacement_m`, foreign scenes only).
     #[serde(default)]
     pub effect_displacement_m: Option<f64>,
+    /// The diagnosis's detection limit of the expected effect on this clip
+    /// (`detectability.NAME.min_magnitude`, dm-synth's units; absent for a
+    /// null scene, a named cause, or an effect not revealed at any
+    /// magnitude searched).
+    #[serde(default)]
+    pub detection_limit: Option<f64>,
 }
 
 /// A foreign scene's effect counts towards the naming rate when it moves
@@ -352,6 +358,10 @@ pub fn run_scene(
             &dir.join("scene.truth.json"),
         )?
         .effect_displacement_m,
+        detection_limit: d
+            .detectability
+            .get(effect.map_or("none", |e| e.name.library_name()))
+            .and_then(|l| l.min_magnitude),
     };
     Ok((result, d))
 }

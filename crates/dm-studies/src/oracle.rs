@@ -37,7 +37,8 @@ pub struct OracleResult {
     pub oracle_track_test: f64,
     pub train_reduction: f64,
     pub held_out_reduction: f64,
-    /// min(train, held-out) reduction: the diagnosis's score.
+    /// min(fit, validation) reduction: the diagnosis's score
+    /// (`dm_diagnose::selection_frames`).
     pub score: f64,
 }
 
@@ -191,7 +192,7 @@ pub fn oracle_fit(
         oracle_track_test: after.test,
         train_reduction,
         held_out_reduction,
-        score: train_reduction.min(held_out_reduction),
+        score: after.score_against(&before),
     };
     write_json_atomic(&out.join("oracle.json"), &result)?;
     Ok(result)

@@ -1,11 +1,14 @@
 //! Detection limits that mean something: on a tiny lifted toy without a
 //! hidden effect the diagnosis says `none` and reports the weakest ground
 //! tilt this clip reveals; the same scene synthesised with the tilt hidden
-//! at twice that limit is named `ground_tilt`, at half of it is not.
+//! at twice that limit is named `ground_tilt`, at half of it is not. And
+//! the action variants tried for an effect the clip cannot show replay the
+//! recorded hands as they say.
 
 mod common;
 
 use dm_bundle::Bundle;
+use dm_diagnose::detectability::ActionVariant;
 use dm_diagnose::{DiagnoseOptions, Diagnosis, diagnose};
 use dm_synth::{Action, Preset, SynthConfig};
 use std::path::Path;
@@ -87,4 +90,42 @@ fn an_effect_at_twice_the_reported_limit_is_named_and_at_half_is_not() {
         0.5 * limit,
         weak.candidates
     );
+}
+
+#[test]
+fn action_variants_replay_the_recorded_hands_faster_or_wider() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let config = SynthConfig {
+        action: Some(Action::Push),
+        ..SynthConfig::tiny(Preset::Rope, 3)
+    };
+    dm_synth::generate(
+        &config,
+        &scene,
+        &dir.path().join("truth.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let bundle = Bundle::open(&scene).expect("bundle");
+    let recorded = &bundle.tracks.hand_points;
+    let frames = recorded.shape()[0];
+    let faster = ActionVariant::TwiceAsFast.bundle(&bundle);
+    let wider = ActionVariant::TwiceTheTravel.bundle(&bundle);
+    for t in 0..frames {
+        for m in 0..recorded.shape()[1] {
+            for a in 0..3 {
+                let at = |t: usize| recorded[[t, m, a]];
+                assert_eq!(
+                    faster.tracks.hand_points[[t, m, a]],
+                    at((2 * t).min(frames - 1))
+                );
+                let travel = wider.tracks.hand_points[[t, m, a]] - at(0);
+                assert!((travel - 2.0 * (at(t) - at(0))).abs() < 1e-6);
+            }
+        }
+    }
+    // The object's tracks are the recorded ones: only the hands change.
+    assert_eq!(faster.tracks.object_points, bundle.tracks.object_points);
+    assert_eq!(wider.tracks.object_points, bundle.tracks.object_points);
 }

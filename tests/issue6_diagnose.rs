@@ -18,8 +18,11 @@ const NULL_SEED: u64 = 1500;
 #[test]
 fn issue6_hidden_effect_is_named_and_null_scene_gives_none() {
     let dir = tempfile::tempdir().expect("temp dir");
+    // The detection limits have their own test (dm-diagnose's
+    // tests/detectability.rs); here they would only add rollouts.
     let options = DiagnoseOptions {
         refit_iters: 0,
+        detect_steps: 0,
         ..DiagnoseOptions::default()
     };
     // CI's 2 cores afford the quick fit; the evaluation's longer fit is in

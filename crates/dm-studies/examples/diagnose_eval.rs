@@ -6,7 +6,7 @@
 //! preset and magnitude and NULL scenes (default 4) without, fits and
 //! diagnoses each, and writes OUT_DIR/results.jsonl (one line per scene,
 //! appended as scenes finish, so an interrupted run keeps its scenes and a
-//! rerun skips finished steps) and OUT_DIR/confusion.md over every line
+//! rerun skips the scenes it holds and reuses the fits of the others) and OUT_DIR/confusion.md over every line
 //! of results.jsonl. With `SHARD/SHARDS` (e.g. `0/2`) the run takes every
 //! SHARDS-th scene from the SHARD-th, so several processes can share one
 //! OUT_DIR. Scenes are fitted with `evaluation_fit_options` (6 + 6
@@ -49,6 +49,10 @@ struct Args {
     /// Fit with `quick_fit_options`: 3 + 1 material steps.
     #[arg(long)]
     quick_fit: bool,
+    /// Also compute each scene's detection limits (`detection_limit` in
+    /// results.jsonl; about 50 more rollouts per scene).
+    #[arg(long)]
+    limits: bool,
     // A scene or fit setting changed (scene directories get its suffix).
     #[command(flatten)]
     variant: SceneVariant,
@@ -63,6 +67,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         shard,
         fit_candidates,
         quick_fit,
+        limits,
         variant,
     } = Args::parse();
     let fit = if quick_fit {
@@ -77,6 +82,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let options = DiagnoseOptions {
         fit_candidates,
         discover_iters: 0,
+        detect_steps: if limits {
+            dm_diagnose::detectability::DEFAULT_DETECT_STEPS
+        } else {
+            0
+        },
         ..DiagnoseOptions::default()
     };
     let mut results: Vec<SceneResult> = Vec::new();
@@ -96,7 +106,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         i += 1;
     }
+    // Scenes already in results.jsonl are not diagnosed again.
+    let done: Vec<SceneResult> = std::fs::read_to_string(out.join("results.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect();
     for (seed, is_null) in jobs.into_iter().skip(shard).step_by(shards) {
+        if done.iter().any(|r| r.seed == seed) {
+            continue;
+        }
         let kind = if is_null { "null" } else { "hidden" };
         let dir = variant.scene_dir(&out, &format!("{kind}{seed}"));
         let start = std::time::Instant::now();

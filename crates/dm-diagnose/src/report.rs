@@ -346,10 +346,13 @@ fn ruled_out_line(d: &Diagnosis) -> String {
         })
         .collect();
     let mut line = if shown.is_empty() {
-        "**Ruled out:** nothing; this clip would reveal none of the library's effects.".to_string()
+        "**Ruled out:** nothing; this clip would reveal none of the library's effects \
+         at any magnitude tried."
+            .to_string()
     } else {
         format!(
-            "**Ruled out** (this clip would have revealed them): {}.",
+            "**Ruled out** at these magnitudes, which this clip would have revealed unless the \
+             fit absorbed part of the effect (the limits are floors): {}.",
             shown.join(", ")
         )
     };

@@ -21,7 +21,7 @@
 //!
 //! The model did not see the injected effect, so none of it is absorbed
 //! into the material or the gains as a real fit would absorb part of it:
-//! for effects the material can mimic the limit is a floor.
+//! an effect the material can mimic may go unnamed above its limit.
 
 use crate::analysis::rollout;
 use crate::candidates::{Candidate, apply, trials};

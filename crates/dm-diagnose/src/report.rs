@@ -352,7 +352,7 @@ fn ruled_out_line(d: &Diagnosis) -> String {
     } else {
         format!(
             "**Ruled out** at these magnitudes, which this clip would have revealed unless the \
-             fit absorbed part of the effect (the limits are floors): {}.",
+             clip's own fit absorbed part of the effect: {}.",
             shown.join(", ")
         )
     };
@@ -379,7 +379,8 @@ fn write_detectability(s: &mut String, d: &Diagnosis) {
          added to the recorded tracks (their noise and the model's misfit stay in), and the \
          candidate's trials scored as above; scanned, then bisected on a log scale. Magnitudes \
          in the units of `dm-synth --effect NAME:MAGNITUDE`. The model absorbed none of the \
-         injected effect, as a fit would absorb part of it, so the limits are floors. For an \
+         injected effect, as a fit would absorb part of it, so an effect above its limit can \
+         still go unnamed; a directed effect's limit is its less visible orientation's. For an \
          effect this clip cannot reveal, variants of the recorded hand action are simulated \
          with the model (observations: its rollout plus this clip's residual) and the one \
          revealing the weakest magnitude is the next experiment.\n"

@@ -1,9 +1,14 @@
-//! Detection limits that mean something: on a tiny lifted toy without a
-//! hidden effect the diagnosis says `none` and reports the weakest ground
-//! tilt this clip reveals; the same scene synthesised with the tilt hidden
-//! at twice that limit is named `ground_tilt`, at half of it is not. And
-//! the action variants tried for an effect the clip cannot show replay the
-//! recorded hands as they say.
+//! Detection limits: on a tiny lifted toy without a hidden effect the
+//! diagnosis says `none`, reports the weakest ground tilt this clip
+//! reveals, and every limit's scan brackets the `none` threshold where it
+//! says (revealed at the limit's scan point, not at the one before; a
+//! missing limit never reached it). Whether a hidden effect at a multiple
+//! of the limit is then named in a fresh clip is measured by
+//! `detection_limits_eval` (docs/diagnose.md: the clip's own fit absorbs
+//! part of an effect, and a directed effect's visibility depends on its
+//! direction, so the limits do not predict it). And the action variants
+//! tried for an effect the clip cannot show replay the recorded hands as
+//! they say.
 
 mod common;
 
@@ -44,7 +49,7 @@ fn diagnose_scene(dir: &Path, effect: Option<String>, detect_steps: usize) -> Di
 }
 
 #[test]
-fn an_effect_at_twice_the_reported_limit_is_named_and_at_half_is_not() {
+fn every_limit_brackets_the_threshold_in_its_scan() {
     let dir = tempfile::tempdir().expect("temp dir");
     let null = diagnose_scene(
         &dir.path().join("null"),
@@ -53,43 +58,44 @@ fn an_effect_at_twice_the_reported_limit_is_named_and_at_half_is_not() {
     );
     assert_eq!(null.cause, "none", "{:?}", null.candidates);
     let tilt = &null.detectability["ground_tilt"];
-    let limit = tilt
-        .min_magnitude
-        .unwrap_or_else(|| panic!("a lifted toy reveals a tilt: {tilt:?}"));
-    assert_eq!(tilt.unit, "deg");
     assert!(
-        tilt.score >= null.threshold,
-        "the limit's own score clears the threshold: {tilt:?}"
+        tilt.min_magnitude.is_some(),
+        "a lifted toy reveals a tilt: {tilt:?}"
     );
+    assert_eq!(tilt.unit, "deg");
+    assert_eq!(null.detectability.len(), 8, "every library effect");
+    for (name, l) in &null.detectability {
+        let scanned: Vec<f64> = l.scan.iter().map(|p| p[1]).collect();
+        let last = *scanned.last().expect("a scan");
+        match l.min_magnitude {
+            // Revealed at the last scan point, not before (bisection then
+            // moved the limit into that bracket).
+            Some(m) => {
+                assert!(l.score >= null.threshold, "{name}: {l:?}");
+                assert!(last >= null.threshold, "{name}: {l:?}");
+                assert!(
+                    scanned[..scanned.len() - 1]
+                        .iter()
+                        .all(|s| *s < null.threshold),
+                    "{name}: {l:?}"
+                );
+                let at = l.scan[scanned.len() - 1][0];
+                let before = l.scan.get(scanned.len().wrapping_sub(2)).map(|p| p[0]);
+                let inside =
+                    |a: f64, b: f64| m >= a.min(b) * (1.0 - 1e-9) && m <= a.max(b) * (1.0 + 1e-9);
+                assert!(
+                    before.map_or(m == at, |b| inside(b, at)),
+                    "{name}: limit {m} outside its bracket {:?}",
+                    l.scan
+                );
+            }
+            None => assert!(scanned.iter().all(|s| *s < null.threshold), "{name}: {l:?}"),
+        }
+    }
     let report =
         std::fs::read_to_string(dir.path().join("null/diagnosis/report.md")).expect("report");
     assert!(report.contains("**Ruled out**"), "{report}");
     assert!(report.contains("## What this clip can show"), "{report}");
-
-    let strong = diagnose_scene(
-        &dir.path().join("strong"),
-        Some(format!("ground_tilt:{}", 2.0 * limit)),
-        0,
-    );
-    assert_eq!(
-        strong.cause,
-        "ground_tilt",
-        "tilt {:.2}° (limit {limit:.2}°): {:?}",
-        2.0 * limit,
-        strong.candidates
-    );
-    let weak = diagnose_scene(
-        &dir.path().join("weak"),
-        Some(format!("ground_tilt:{}", 0.5 * limit)),
-        0,
-    );
-    assert_ne!(
-        weak.cause,
-        "ground_tilt",
-        "tilt {:.2}° (limit {limit:.2}°): {:?}",
-        0.5 * limit,
-        weak.candidates
-    );
 }
 
 #[test]

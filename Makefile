@@ -44,8 +44,9 @@ system-packages:
 DEMO_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1
 # Diagnosis runs on a small second scene hiding a tilted ground,
 # at the size and quick fit of the hidden-effect evaluation
-# (crates/dm-studies/src/diagnosis_evaluation.rs): about 1 min for synth, fit and
-# diagnosis, where the main 72-frame scene takes about 9 min to diagnose.
+# (crates/dm-studies/src/diagnosis_evaluation.rs): about 4 min for synth, fit and
+# diagnosis (3 of them the detection limits and the discovery), where the main
+# 72-frame scene takes far longer to diagnose.
 DIAG_SCENE ?= --preset cloth --seed 1014 --action lift --effect ground_tilt:8 --frames 36 --width 48 --height 36 --truth-particles 3000 --tracks 120 --bundle-particles 1000
 DIAG_FIT ?= --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 0
 # A short plan (docs/plan.md): the fitted object moved 15 cm sideways, 60

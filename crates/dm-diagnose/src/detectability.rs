@@ -92,6 +92,7 @@ struct MagnitudeScale {
     unit: &'static str,
     /// Parameter per unit of magnitude (a lag's frames per second).
     per_magnitude: f64,
+    stronger: Stronger,
 }
 
 fn magnitude_scale(candidate: Candidate, fps: f64) -> MagnitudeScale {
@@ -109,6 +110,12 @@ fn magnitude_scale(candidate: Candidate, fps: f64) -> MagnitudeScale {
         key,
         unit,
         per_magnitude,
+        // A smaller yield stretch is the stronger plasticity.
+        stronger: if candidate == Candidate::Plasticity {
+            Stronger::Below
+        } else {
+            Stronger::Above
+        },
     }
 }
 
@@ -171,28 +178,10 @@ impl Injection<'_> {
         Some(relative_reduction(base_fit, best.0).min(relative_reduction(base_validation, best.1)))
     }
 
-    /// The recorded tracks moved by the injected effect's displacement of
+    /// The observed tracks moved by the injected effect's displacement of
     /// each track's matched particle.
     fn displaced_tracks(&self, injected: &[Vec<[f32; 3]>]) -> Tracks {
-        let mut tracks = self.observed.clone();
-        let frames = tracks
-            .frame_count()
-            .min(injected.len())
-            .min(self.base_positions.len());
-        for t in 0..frames {
-            for (k, particle) in self.matched.iter().enumerate() {
-                let Some(i) = *particle else { continue };
-                let (Some(moved), Some(fitted)) =
-                    (injected[t].get(i), self.base_positions[t].get(i))
-                else {
-                    continue;
-                };
-                for a in 0..3 {
-                    tracks.object_points[[t, k, a]] += moved[a] - fitted[a];
-                }
-            }
-        }
-        tracks
+        displaced(self.observed, injected, self.base_positions, &self.matched)
     }
 }
 
@@ -285,8 +274,12 @@ pub(crate) fn detectability(
         let Ok(run) = rollout(model, &varied) else {
             continue;
         };
-        let observed =
-            transplanted_observations(bundle, base_positions, &run.positions, &injection.matched);
+        let observed = displaced(
+            &bundle.tracks,
+            &run.positions,
+            base_positions,
+            &injection.matched,
+        );
         let varied_injection = Injection {
             model,
             bundle: &varied,
@@ -390,32 +383,27 @@ pub struct NextAction {
     pub min_magnitude: f64,
 }
 
-/// Observations under a varied action: each track's matched particle in
-/// the model's rollout under it, plus the recorded clip's residual of
-/// that track at the same frame (recorded track minus the model's
-/// rollout), so the clip's track offsets, noise and the model's misfit
-/// carry over to the varied action at their recorded size.
-fn transplanted_observations(
-    bundle: &Bundle,
-    base_positions: &[Vec<[f32; 3]>],
-    varied_positions: &[Vec<[f32; 3]>],
+/// `tracks` with each track moved by its matched particle's displacement
+/// `moved − fitted` at every frame both rollouts have. Under a varied
+/// action (`moved` its rollout, `fitted` the recorded one's, `tracks` the
+/// recorded ones) this carries the clip's residual — offsets, noise and
+/// the model's misfit — over to the new action at its recorded size.
+fn displaced(
+    tracks: &Tracks,
+    moved: &[Vec<[f32; 3]>],
+    fitted: &[Vec<[f32; 3]>],
     matched: &[Option<usize>],
 ) -> Tracks {
-    let mut tracks = bundle.tracks.clone();
-    let frames = tracks
-        .frame_count()
-        .min(base_positions.len())
-        .min(varied_positions.len());
-    for (k, particle) in matched.iter().enumerate() {
-        let Some(i) = *particle else { continue };
-        for t in 0..frames {
-            let (Some(varied), Some(fitted)) =
-                (varied_positions[t].get(i), base_positions[t].get(i))
-            else {
+    let mut tracks = tracks.clone();
+    let frames = tracks.frame_count().min(moved.len()).min(fitted.len());
+    for t in 0..frames {
+        for (k, particle) in matched.iter().enumerate() {
+            let Some(i) = *particle else { continue };
+            let (Some(m), Some(f)) = (moved[t].get(i), fitted[t].get(i)) else {
                 continue;
             };
             for a in 0..3 {
-                tracks.object_points[[t, k, a]] += varied[a] - fitted[a];
+                tracks.object_points[[t, k, a]] += m[a] - f[a];
             }
         }
     }
@@ -502,11 +490,7 @@ fn bisect(
             .unwrap_or(f64::NEG_INFINITY)
     };
     let [low, high] = search_range(candidate);
-    let stronger = if candidate == Candidate::Plasticity {
-        Stronger::Below
-    } else {
-        Stronger::Above
-    };
+    let stronger = scale.stronger;
     // Weakest first.
     let mut scan: Vec<f64> = (0..SCAN_POINTS)
         .map(|i| low * (high / low).powf(i as f64 / (SCAN_POINTS - 1).max(1) as f64))

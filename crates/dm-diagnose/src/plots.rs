@@ -226,14 +226,16 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
             label: &extended_label,
         });
     }
+    let validation_start = crate::selection_frames(p.split.train).validation[0];
     let chart = line_chart(
         &series,
         &ChartOptions {
             width: 640,
             height: 320,
             scale: ValueScale::Linear,
-            markers: vec![p.split.test[0]],
-            title: "Track error per frame (dashed: held-out test split starts)".into(),
+            markers: vec![validation_start, p.split.test[0]],
+            title: "Track error per frame (dashed: validation frames, then test split, start)"
+                .into(),
             x_label: "frame".into(),
             y_label: "track error (mm)".into(),
         },
@@ -250,9 +252,11 @@ pub(crate) fn write_plots(p: &PlotInputs<'_>, out: &Path) -> Result<Vec<PlotFile
         file: "error_vs_time.png".into(),
         caption: format!(
             "Track error per frame (x: frame 0–{}, y: 0–{:.1} mm). Red: fitted model; blue: \
-             extended model. Dashed line: start of the held-out test split (frame {}).",
+             extended model. Dashed lines: start of the validation frames that chose the \
+             cause (frame {}) and of the held-out test split (frame {}).",
             p.base_track.len().saturating_sub(1),
             1e3 * max_err,
+            validation_start,
             p.split.test[0]
         ),
     });

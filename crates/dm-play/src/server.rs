@@ -664,7 +664,10 @@ async fn send_within(
 }
 
 /// Tells the page why it is disconnected (best effort: it may not read)
-/// and returns the reason.
+/// and returns the reason. The page's messages still in flight are read
+/// and dropped until it answers the close frame (or `CLOSE_DRAIN` passes):
+/// a socket dropped with unread data is reset, and a reset discards the
+/// close frame before the page can read it.
 async fn close(mut socket: WebSocket, code: u16, reason: String) -> String {
     // A close frame's reason holds at most 123 bytes.
     let mut end = reason.len().min(120);
@@ -680,5 +683,16 @@ async fn close(mut socket: WebSocket, code: u16, reason: String) -> String {
         socket.send(Message::Close(Some(frame))),
     )
     .await;
+    let _ = tokio::time::timeout(CLOSE_DRAIN, async {
+        while let Some(Ok(message)) = socket.recv().await {
+            if matches!(message, Message::Close(_)) {
+                break;
+            }
+        }
+    })
+    .await;
     reason
 }
+
+/// How long a disconnected page may take to answer the close frame.
+const CLOSE_DRAIN: Duration = Duration::from_secs(2);

@@ -323,6 +323,9 @@ pub(crate) fn material_config(
     }
 }
 
+/// The gain search's box: log10 of k_p (1/s²) and of k_d (1/s).
+pub const GAIN_SEARCH_LOG10: [[f64; 2]; 2] = [[0.0, 5.0], [-1.0, 3.0]];
+
 /// CMA-ES over (log10 kp, log10 kd) in [1, 1e5] × [0.1, 1e3] (1/s², 1/s),
 /// and with `--search-grasp-radius` log10 of the grasp radius in
 /// [`GRASP_RADIUS_SEARCH_M`], starting from the current values; the train
@@ -336,7 +339,11 @@ fn select_gains(
     let radius = options.search_grasp_radius;
     let [r_lo, r_hi] = GRASP_RADIUS_SEARCH_M.map(f64::log10);
     let mut start = vec![model.actuator.kp.log10(), model.actuator.kd.log10()];
-    let (mut lo, mut hi) = (vec![0.0, -1.0], vec![5.0, 3.0]);
+    let [kp_range, kd_range] = GAIN_SEARCH_LOG10;
+    let (mut lo, mut hi) = (
+        vec![kp_range[0], kd_range[0]],
+        vec![kp_range[1], kd_range[1]],
+    );
     if radius {
         start.push(model.actuator.grasp_radius.log10().clamp(r_lo, r_hi));
         lo.push(r_lo);

@@ -11,6 +11,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use dm_bundle::Bundle;
 use dm_fit::material_fit::train_loss;
+use dm_fit::run::GAIN_SEARCH_LOG10;
 use dm_model::WorldModel;
 use dm_model::metrics::{frame_errors, split_mean};
 use rayon::prelude::*;
@@ -28,9 +29,8 @@ struct Args {
     max_log_kp: f64,
 }
 
-/// The gain search's bounds, log10 (dm-fit's `select_gains`).
-const LOG_KP: [f64; 2] = [0.0, 5.0];
-const LOG_KD: [f64; 2] = [-1.0, 3.0];
+const LOG_KP: [f64; 2] = GAIN_SEARCH_LOG10[0];
+const LOG_KD: [f64; 2] = GAIN_SEARCH_LOG10[1];
 
 fn axis([lo, hi]: [f64; 2], per_decade: usize) -> Vec<f64> {
     let steps = ((hi - lo) * per_decade as f64).round() as usize;

@@ -7,14 +7,14 @@
 set -euo pipefail
 OUT=${1:?usage: gradient.sh OUT_DIR}
 BIN=${BIN:-target/release}
-TASKS="rope-null:u-shape rope-null:straighten rope-drag:move cloth-null:fold cloth-null:flatten cloth-tilt:move toy-null:place toy-null:squash toy-friction:rotate"
+TASKS="rope-null:u-shape rope-bent:straighten:70 rope-drag:move cloth-null:fold cloth-null:flatten cloth-tilt:move toy-null:place toy-null:squash toy-friction:rotate"
 for spec in $TASKS; do
-  IFS=: read -r name goal <<< "$spec"
+  IFS=: read -r name goal start <<< "$spec"
   dir="$OUT/tasks/$name-$goal/gradient"
   [ -f "$dir/plan.json" ] && continue
   mkdir -p "$(dirname "$dir")"
   "$BIN/dm-plan" "$OUT/$name/model" --bundle "$OUT/$name/scene" --goal "$goal" \
-    --plant "$OUT/$name/truth.json" --out "$dir" --horizon 60 --knots 4 --no-video \
+    --plant "$OUT/$name/truth.json" --out "$dir" ${start:+--start-frame $start} --horizon 60 --knots 4 --no-video \
     --optimizer gradient --gradient-iters 66 > "$dir.log" 2>&1 || echo "failed: see $dir.log"
 done
 python3 "$(dirname "$0")/compare.py" "$OUT/tasks"

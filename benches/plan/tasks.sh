@@ -11,26 +11,29 @@ BIN=${BIN:-target/release}
 FIT="--iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 0"
 PLAN="--horizon 60 --knots 4 --replan-every 20 --replan-iterations 2 --no-video $*"
 mkdir -p "$OUT"
-# scene: preset seed effect
-SCENES="rope-null:rope:31: rope-drag:rope:32:air_drag cloth-null:cloth:31: cloth-tilt:cloth:32:ground_tilt toy-null:toy:31: toy-friction:toy:32:floor_friction"
+# scene: preset seed effect [action]; rope-bent is pushed on a rough floor,
+# which keeps it bent once let go (an elastic rope on the default floor
+# springs back straight).
+SCENES="rope-null:rope:31: rope-bent:rope:31:floor_friction:0.8:push rope-drag:rope:32:air_drag cloth-null:cloth:31: cloth-tilt:cloth:32:ground_tilt toy-null:toy:31: toy-friction:toy:32:floor_friction"
 for spec in $SCENES; do
-  IFS=: read -r name preset seed effect <<< "$spec"
+  IFS=: read -r name preset seed effect magnitude action <<< "$spec"
   if [ ! -f "$OUT/$name/model/model.json" ]; then
-    "$BIN/dm-synth" --preset "$preset" --seed "$seed" ${effect:+--effect $effect} \
+    "$BIN/dm-synth" --preset "$preset" --seed "$seed" ${effect:+--effect $effect${magnitude:+:$magnitude}} ${action:+--action $action} \
       --out "$OUT/$name/scene" --truth "$OUT/$name/truth.json" > "$OUT/$name.synth.log" 2>&1
     "$BIN/dm-fit" "$OUT/$name/scene" --out "$OUT/$name/model" $FIT > "$OUT/$name.fit.log" 2>&1
   fi
 done
-# task: scene goal
-TASKS="rope-null:u-shape rope-null:straighten rope-drag:move cloth-null:fold cloth-null:flatten cloth-tilt:move toy-null:place toy-null:squash toy-friction:rotate"
+# task: scene goal [start frame]; the bent rope is straightened from where
+# its clip leaves it (frame 70, let go, settled).
+TASKS="rope-null:u-shape rope-bent:straighten:70 rope-drag:move cloth-null:fold cloth-null:flatten cloth-tilt:move toy-null:place toy-null:squash toy-friction:rotate"
 for spec in $TASKS; do
-  IFS=: read -r name goal <<< "$spec"
+  IFS=: read -r name goal start <<< "$spec"
   for model in fitted untrained; do
     dir="$OUT/tasks/$name-$goal/$model"
     [ -f "$dir/plan.json" ] && continue
     mkdir -p "$(dirname "$dir")"
     "$BIN/dm-plan" "$OUT/$name/model" --bundle "$OUT/$name/scene" --goal "$goal" \
-      --plant "$OUT/$name/truth.json" --out "$dir" $PLAN $([ "$model" = untrained ] && echo --untrained) \
+      --plant "$OUT/$name/truth.json" --out "$dir" ${start:+--start-frame $start} $PLAN $([ "$model" = untrained ] && echo --untrained) \
       > "$dir.log" 2>&1 || { mkdir -p "$dir"; echo "failed: see $dir.log"; }
   done
 done

@@ -583,6 +583,11 @@ impl Simulation {
         Ok(())
     }
 
+    /// Lets go of the object (see [`World::release_grasps`]).
+    pub fn release_grasps(&mut self) -> Result<(), ModelError> {
+        self.world.edit(World::release_grasps)
+    }
+
     /// Replaces the world by one built from `physics` and `material` (the
     /// substep is chosen again for the new stiffness) that continues from
     /// the current particle state, on the same device. Grasps are not

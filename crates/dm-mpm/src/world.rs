@@ -280,6 +280,12 @@ impl<T: Real> World<T> {
         self.actuators.config.kd = kd;
     }
 
+    /// Lets go of the object: every coupling to a hand anchor is dropped,
+    /// and the next frame's active anchors grasp afresh.
+    pub fn release_grasps(&mut self) {
+        self.actuators = Actuators::new(self.actuators.config, self.particle_count());
+    }
+
     /// Positions in the caller's particle order, metres.
     pub fn positions(&self) -> Vec<[f64; 3]> {
         self.to_caller_order(&self.particles.x)

@@ -985,3 +985,45 @@ fn world_rejects_bad_inputs() {
         Err(SimError::InvalidInput(_))
     ));
 }
+
+/// A released world keeps its particle state and no hand holds it: it
+/// steps without anchors (a held world refuses to) and, bit for bit, as a
+/// world that never grasped, built from the same state.
+#[test]
+fn a_released_world_steps_as_one_that_never_grasped() {
+    let config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
+    let mut points = Vec::new();
+    for i in 0..4 {
+        for j in 0..4 {
+            for k in 0..4 {
+                points.push([
+                    0.45 + 0.02 * i as f64,
+                    0.45 + 0.02 * j as f64,
+                    0.2 + 0.02 * k as f64,
+                ]);
+            }
+        }
+    }
+    let n = points.len();
+    let material = || ParticleMaterial::<f32>::uniform(n, 1e5, 0.3, [1.0, 0.0, 0.0]);
+    let act = ActuatorConfig::default();
+    let volume = 0.02f64.powi(3);
+    let mut held = World::new(config.clone(), &points, volume, material(), act).expect("world");
+    let hand = [0.48, 0.48, 0.26];
+    let raised = [0.48, 0.48, 0.30];
+    held.step_frame(&[hand], &[raised], &[true]).expect("grasp");
+    assert!(held.actuators().coupled_particle_count() > 0);
+    assert!(
+        held.step_frame_free().is_err(),
+        "a held world needs its anchors"
+    );
+    held.release_grasps();
+    assert_eq!(held.actuators().coupled_particle_count(), 0);
+    let mut fresh = World::new(config, &points, volume, material(), act).expect("world");
+    fresh.set_state(&held.state()).expect("state");
+    held.step_frame(&[raised], &[[0.48, 0.48, 0.34]], &[false])
+        .expect("released step");
+    fresh.step_frame_free().expect("free step");
+    assert_eq!(held.positions(), fresh.positions());
+    assert_eq!(held.velocities(), fresh.velocities());
+}

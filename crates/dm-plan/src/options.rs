@@ -39,6 +39,12 @@ pub struct PlanOptions {
     /// dm-synth's truth file of the scene: carry the plan out in that truth world (hidden effects included) instead of the fitted model.
     #[arg(long)]
     pub plant: Option<PathBuf>,
+    /// Start where the clip leaves the object at frame T: the recorded hands play frames 0 to T, let go, and the object settles before the plan begins (0: the first frame, at rest).
+    #[arg(long, default_value_t = 0)]
+    pub start_frame: usize,
+    /// Frames the object settles for after the hands let go at `--start-frame`.
+    #[arg(long, default_value_t = 30)]
+    pub settle_frames: usize,
     /// Search: MPPI, gradient refinement through the simulator, or both in turn.
     #[arg(long, value_enum, default_value_t = Optimizer::MppiGradient)]
     pub optimizer: Optimizer,

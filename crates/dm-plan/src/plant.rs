@@ -3,7 +3,9 @@
 //! fit — dm-synth's truth world of the scene, hidden effects included,
 //! rebuilt from its truth file. Each planned hand is one anchor in the
 //! model; in the truth world it is a cluster of anchors (a centre and a
-//! ring, as dm-synth's scripted hands hold the object).
+//! ring, as dm-synth's scripted hands hold the object). Either plant can
+//! also replay the clip's own hands, to start a plan where the clip
+//! leaves the object.
 
 use dm_model::{Simulation, WorldModel};
 use dm_mpm::World;
@@ -19,30 +21,36 @@ const TRUTH_RING_ANCHORS: usize = 4;
 /// A world that carries out hand motions.
 #[derive(Debug)]
 pub enum Plant {
-    /// The fitted model at full resolution.
+    /// The fitted model at full resolution; `clip_hands` are the bundle's
+    /// recorded hand anchors per frame.
     Model {
         simulation: Box<Simulation>,
         surface_count: usize,
+        clip_hands: Vec<Vec<[f64; 3]>>,
     },
-    /// dm-synth's truth world, and which of its particles are on the surface.
+    /// dm-synth's truth world, which of its particles are on the surface,
+    /// and the true hands' anchors per frame of the clip.
     Truth {
         world: Box<World<f32>>,
         surface: Vec<bool>,
+        clip_hands: Vec<Vec<[f64; 3]>>,
     },
 }
 
 impl Plant {
-    pub fn model(model: &WorldModel) -> Result<Self, PlanError> {
+    pub fn model(model: &WorldModel, clip_hands: Vec<Vec<[f64; 3]>>) -> Result<Self, PlanError> {
         Ok(Plant::Model {
             simulation: Box::new(model.simulation()?),
             surface_count: model.surface_count,
+            clip_hands,
         })
     }
 
-    pub fn truth(world: World<f32>, surface: Vec<bool>) -> Self {
+    pub fn truth(world: World<f32>, surface: Vec<bool>, clip_hands: Vec<Vec<[f64; 3]>>) -> Self {
         Plant::Truth {
             world: Box::new(world),
             surface,
+            clip_hands,
         }
     }
 
@@ -96,6 +104,43 @@ impl Plant {
         }
     }
 
+    /// Frames of the clip whose hands the plant can replay.
+    pub fn clip_frames(&self) -> usize {
+        match self {
+            Plant::Model { clip_hands, .. } | Plant::Truth { clip_hands, .. } => clip_hands.len(),
+        }
+    }
+
+    /// The clip's frame `t` → `t + 1` with its own hands, which grasp as
+    /// they reach the object (as the clip was made).
+    pub fn replay(&mut self, t: usize) -> Result<(), PlanError> {
+        let hands = match self {
+            Plant::Model { clip_hands, .. } | Plant::Truth { clip_hands, .. } => clip_hands,
+        };
+        let (Some(from), Some(to)) = (hands.get(t).cloned(), hands.get(t + 1).cloned()) else {
+            return Err(crate::invalid(
+                "--start-frame",
+                format!("the clip has no frame {}", t + 1),
+            ));
+        };
+        let grasp = vec![true; from.len()];
+        self.advance(&from, &to, &grasp)
+    }
+
+    /// Lets go of the object; the next plan's hands grasp afresh.
+    pub fn release(&mut self) -> Result<(), PlanError> {
+        match self {
+            Plant::Model { simulation, .. } => simulation.release_grasps()?,
+            Plant::Truth { world, .. } => world.release_grasps(),
+        }
+        Ok(())
+    }
+
+    /// One frame with no hand on the object.
+    pub fn step_free(&mut self) -> Result<(), PlanError> {
+        self.advance(&[], &[], &[])
+    }
+
     /// One frame while the hands move from `from` to `to`; they grasp at
     /// the first frame carried out.
     pub fn step(
@@ -106,9 +151,18 @@ impl Plant {
     ) -> Result<(), PlanError> {
         let (a, b) = (self.anchors(from), self.anchors(to));
         let grasp = vec![first; a.len()];
+        self.advance(&a, &b, &grasp)
+    }
+
+    fn advance(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        grasp: &[bool],
+    ) -> Result<(), PlanError> {
         match self {
-            Plant::Model { simulation, .. } => simulation.step(&a, &b, &grasp)?,
-            Plant::Truth { world, .. } => world.step_frame(&a, &b, &grasp)?,
+            Plant::Model { simulation, .. } => simulation.step(from, to, grasp)?,
+            Plant::Truth { world, .. } => world.step_frame(from, to, grasp)?,
         }
         Ok(())
     }

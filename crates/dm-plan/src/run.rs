@@ -9,6 +9,7 @@ use std::time::Instant;
 use dm_bundle::Bundle;
 use dm_model::metrics::match_tracks;
 use dm_model::{ModelOptions, WorldModel};
+use dm_mpm::state::Particles;
 use dm_play::PlayOptions;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -113,11 +114,10 @@ fn read_goal(
 fn grasp_points(
     options: &PlanOptions,
     bundle: &Bundle,
-    planning: &PlanningModel,
+    particles: &[[f64; 3]],
     goal: &Goal,
     correspondences: Option<&[usize]>,
 ) -> Vec<[f64; 3]> {
-    let particles = planning.particles();
     let Some(ids) = correspondences else {
         let anchors = dm_model::hand_anchors(bundle, 0);
         return bundle
@@ -172,11 +172,11 @@ fn grasp_points(
     chosen.iter().map(|&p| particles[p]).collect()
 }
 
-/// The box the hands stay in: the object's first-frame box grown by the
+/// The box the hands stay in: the object's box at the start grown by the
 /// margin (upwards by twice it), never below the floor.
-fn workspace(planning: &PlanningModel, margin: f64, up: [f64; 3], floor: f64) -> Workspace {
+fn workspace(particles: &[[f64; 3]], margin: f64, up: [f64; 3], floor: f64) -> Workspace {
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for p in planning.particles() {
+    for p in particles {
         for a in 0..3 {
             lo[a] = lo[a].min(p[a] - margin);
             hi[a] = hi[a].max(p[a] + margin);
@@ -200,13 +200,12 @@ fn initial_plan(
     grasps: &[[f64; 3]],
     goal: &Goal,
     correspondences: Option<&[usize]>,
-    planning: &PlanningModel,
+    particles: &[[f64; 3]],
     knots: usize,
     horizon: usize,
 ) -> ActionPlan {
     let mut plan = ActionPlan::at_rest(grasps, knots, horizon);
     if let Some(ids) = correspondences {
-        let particles = planning.particles();
         for hand in &mut plan.hands {
             // The goal point of the grasped particle (nearest to the grasp).
             let target = ids
@@ -230,6 +229,83 @@ fn initial_plan(
         }
     }
     plan
+}
+
+/// The smallest box holding `points`.
+fn bounds(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    points.iter().fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                std::array::from_fn(|a| lo[a].min(p[a])),
+                std::array::from_fn(|a| hi[a].max(p[a])),
+            )
+        },
+    )
+}
+
+/// The planning world's state observed in the plant: the plant's
+/// positions with noise and its velocities; the deformation as the
+/// planning world (`tracker`) accounts for it.
+fn observe(
+    plant: &mut Plant,
+    tracker: &dm_mpm::World<f32>,
+    observed_of: &[usize],
+    noise: &Normal<f64>,
+    rng: &mut ChaCha8Rng,
+) -> Result<Particles<f32>, PlanError> {
+    let truth = plant.state()?;
+    let mut state = tracker.state();
+    for (p, &q) in observed_of.iter().enumerate() {
+        for a in 0..3 {
+            state.x[p][a] = truth.x[q][a] + noise.sample(rng) as f32;
+            state.v[p][a] = truth.v[q][a];
+        }
+    }
+    Ok(state)
+}
+
+/// Brings the plant and the planning world (`tracker`) to where the clip
+/// leaves the object at `--start-frame`: the clip's hands play up to it
+/// (the plant's own, the recorded ones in the planning world), let go, and
+/// the object settles for `--settle-frames`; returns the state observed
+/// then.
+#[allow(clippy::too_many_arguments)]
+fn start_from_clip(
+    options: &PlanOptions,
+    plant: &mut Plant,
+    tracker: &mut dm_mpm::World<f32>,
+    clip_hands: &[Vec<[f64; 3]>],
+    observed_of: &[usize],
+    noise: &Normal<f64>,
+    rng: &mut ChaCha8Rng,
+    progress: Progress<'_>,
+) -> Result<Particles<f32>, PlanError> {
+    let last = clip_hands.len().min(plant.clip_frames());
+    if options.start_frame >= last {
+        return Err(invalid(
+            "--start-frame",
+            format!(
+                "frame {} is past the clip, which has {last} frames",
+                options.start_frame
+            ),
+        ));
+    }
+    let total = options.start_frame + options.settle_frames;
+    for t in 0..options.start_frame {
+        plant.replay(t)?;
+        let grasp = vec![true; clip_hands[t].len()];
+        tracker.step_frame(&clip_hands[t], &clip_hands[t + 1], &grasp)?;
+        progress("start", t + 1, total);
+    }
+    plant.release()?;
+    tracker.release_grasps();
+    for s in 0..options.settle_frames {
+        plant.step_free()?;
+        tracker.step_frame_free()?;
+        progress("start", options.start_frame + s + 1, total);
+    }
+    observe(plant, tracker, observed_of, noise, rng)
 }
 
 /// What `run` returns besides the files.
@@ -282,17 +358,117 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         PlayOptions::interactive()
     };
     let planning = PlanningModel::new(&model, &play)?;
-    let goal = read_goal(options, &bundle, &model)?;
-    let correspondences: Option<Vec<usize>> = goal.particles.as_ref().map(|ids| {
+    let rest_goal = read_goal(options, &bundle, &model)?;
+    let correspondences: Option<Vec<usize>> = rest_goal.particles.as_ref().map(|ids| {
         let points: Vec<[f64; 3]> = ids.iter().map(|&i| model.particles[i]).collect();
         planning.nearest_particles(&points)
     });
     let (up, floor) = up_and_floor(&bundle);
-    let workspace = workspace(&planning, options.workspace_margin_m, up, floor);
+    let clip_hands: Vec<Vec<[f64; 3]>> = (0..bundle.frame_count())
+        .map(|t| dm_model::hand_anchors(&bundle, t))
+        .collect();
+    // The plant (built first: a plant that cannot be built should stop the
+    // run before the search). Its domain holds the hands' reach from the
+    // first frame and, for a later start, the clip's hands too.
+    let rest_workspace = workspace(planning.particles(), options.workspace_margin_m, up, floor);
+    let mut reach = vec![rest_workspace.lo, rest_workspace.hi];
+    if options.start_frame > 0 {
+        reach.extend(clip_hands.iter().take(options.start_frame + 1).flatten());
+    }
+    let (mut plant, plant_name) = match &options.plant {
+        Some(path) => {
+            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
+            let (world, surface) = dm_synth::plant_world(&truth, &reach)?;
+            (
+                Plant::truth(world, surface, dm_synth::clip_hand_anchors(&truth)),
+                format!("truth:{}", path.display()),
+            )
+        }
+        None => (
+            Plant::model(&model.with_domain_containing(&reach), clip_hands.clone())?,
+            "model".to_string(),
+        ),
+    };
+    // Which plant particle each planning particle and goal point is
+    // observed as: the nearest at the first frame.
+    let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions()?);
+    let observed_of: Vec<usize> = planning
+        .particles()
+        .iter()
+        .map(|p| plant_index.nearest(p, 1).first().map_or(0, |n| n.0))
+        .collect();
+    let plant_correspondences: Option<Vec<usize>> = rest_goal.particles.as_ref().map(|ids| {
+        ids.iter()
+            .map(|&i| {
+                plant_index
+                    .nearest(&model.particles[i], 1)
+                    .first()
+                    .map_or(0, |n| n.0)
+            })
+            .collect()
+    });
+    let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
+        .map_err(|e| invalid("--observation-noise-mm", e.to_string()))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed);
+    // The planning world's own account of the plant (its deformation);
+    // positions and velocities are observed from the plant.
+    let mut tracker = planning.world::<f32>()?;
+    let start_state = if options.start_frame > 0 {
+        let state = start_from_clip(
+            options,
+            &mut plant,
+            &mut tracker,
+            &clip_hands,
+            &observed_of,
+            &noise,
+            &mut rng,
+            progress,
+        )?;
+        tracker.set_state(&state)?;
+        Some(state)
+    } else {
+        None
+    };
+    let start_positions: Vec<[f64; 3]> = match &start_state {
+        Some(state) => state
+            .x
+            .iter()
+            .map(|p| [0, 1, 2].map(|a| f64::from(p[a])))
+            .collect(),
+        None => planning.particles().to_vec(),
+    };
+    // A named goal is the first frame's shape changed as it says; from a
+    // later start, that shape where the object now lies.
+    let goal = match (
+        &start_state,
+        &correspondences,
+        rest_goal.particles.is_some(),
+    ) {
+        (Some(_), Some(ids), true) if crate::goal::is_named(&options.goal) => {
+            let now: Vec<[f64; 3]> = ids.iter().map(|&i| start_positions[i]).collect();
+            let rest: Vec<[f64; 3]> = rest_goal
+                .particles
+                .iter()
+                .flatten()
+                .map(|&i| model.particles[i])
+                .collect();
+            rest_goal.placed_as_moved(&rest, &now, up)
+        }
+        _ => rest_goal,
+    };
+    let workspace = {
+        let w = workspace(&start_positions, options.workspace_margin_m, up, floor);
+        // Never beyond the plant's domain.
+        let (lo, hi) = bounds(&reach);
+        Workspace {
+            lo: std::array::from_fn(|a| w.lo[a].max(lo[a])),
+            hi: std::array::from_fn(|a| w.hi[a].min(hi[a])),
+        }
+    };
     let grasps = grasp_points(
         options,
         &bundle,
-        &planning,
+        &start_positions,
         &goal,
         correspondences.as_deref(),
     );
@@ -302,23 +478,6 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             "no grasp point found: the goal has no correspondences and the bundle no hands",
         ));
     }
-    // The plant (built first: a plant that cannot be built should stop the
-    // run before the search).
-    let (mut plant, plant_name) = match &options.plant {
-        Some(path) => {
-            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
-            let extra = [workspace.lo, workspace.hi];
-            let (world, surface) = dm_synth::plant_world(&truth, &extra)?;
-            (
-                Plant::truth(world, surface),
-                format!("truth:{}", path.display()),
-            )
-        }
-        None => (
-            Plant::model(&model.with_domain_containing(&[workspace.lo, workspace.hi]))?,
-            "model".to_string(),
-        ),
-    };
     let weights = CostWeights {
         max_speed_m_s: options.max_speed,
         ..CostWeights::default()
@@ -342,13 +501,13 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         &grasps,
         &goal,
         correspondences.as_deref(),
-        &planning,
+        &start_positions,
         options.knots,
         options.horizon,
     );
     let mut plan = search.search(
         &first,
-        None,
+        start_state.as_ref(),
         options.iterations,
         options.gradient_iters,
         options.seed,
@@ -357,26 +516,12 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     let initial_plan_record = plan.clone();
 
     let mut planning_world = planning.world::<f32>()?;
+    if let Some(state) = &start_state {
+        planning_world.set_state(state)?;
+    }
     let planned = rollout(&mut planning_world, &plan, true)?;
     let planned_outcome = cost.scores(planned.last().map(Vec::as_slice).unwrap_or(&[]));
 
-    let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions()?);
-    let observed_of: Vec<usize> = planning
-        .particles()
-        .iter()
-        .map(|p| plant_index.nearest(p, 1).first().map_or(0, |n| n.0))
-        .collect();
-    // The plant particle each goal point's model particle starts nearest to.
-    let plant_correspondences: Option<Vec<usize>> = goal.particles.as_ref().map(|ids| {
-        ids.iter()
-            .map(|&i| {
-                plant_index
-                    .nearest(&model.particles[i], 1)
-                    .first()
-                    .map_or(0, |n| n.0)
-            })
-            .collect()
-    });
     let plant_scores = |plant: &mut Plant| -> Result<_, PlanError> {
         Ok(scores(
             &goal.points,
@@ -386,12 +531,8 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         ))
     };
     let start_outcome = plant_scores(&mut plant)?;
-    let mut tracker = planning.world::<f32>()?;
     let mut executed = vec![plant.positions()?];
     let mut hands = vec![plan.anchors(0)];
-    let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
-        .map_err(|e| invalid("--observation-noise-mm", e.to_string()))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed);
     let mut replans = 0;
     let mut t = 0;
     // `plan` runs from frame `offset` of the whole motion.
@@ -417,14 +558,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         if options.replan_every > 0 && t < options.horizon {
             // Observed: the plant's positions with noise, its velocities;
             // the deformation as the model predicts it.
-            let truth = plant.state()?;
-            let mut state = tracker.state();
-            for (p, &q) in observed_of.iter().enumerate() {
-                for a in 0..3 {
-                    state.x[p][a] = truth.x[q][a] + noise.sample(&mut rng) as f32;
-                    state.v[p][a] = truth.v[q][a];
-                }
-            }
+            let state = observe(&mut plant, &tracker, &observed_of, &noise, &mut rng)?;
             let rest = shifted(&plan, t - offset);
             plan = search.search(
                 &rest,

@@ -126,6 +126,8 @@ fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
         goal: "place".into(),
         out: dir.path().join("plan"),
         plant: Some(truth),
+        start_frame: 0,
+        settle_frames: 30,
         optimizer: dm_plan::run::Optimizer::MppiGradient,
         horizon: 12,
         knots: 2,
@@ -166,4 +168,78 @@ fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
     // Seeded: the same options give the same plan and the same execution.
     let again = dm_plan::run::plan(&options, &mut |_, _, _| {}).expect("plan");
     assert_eq!(again.executed, result.executed);
+}
+
+/// From a later start the plant and the planning world first play the
+/// clip's hands, let go and settle; the plan starts from there, and a
+/// named goal is asked for where the object then lies.
+#[test]
+fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let truth = dir.path().join("truth.json");
+    let config = SynthConfig::tiny(Preset::Rope, 4);
+    dm_synth::generate(&config, &scene, &truth, &mut |_, _, _| {}).expect("scene");
+    let options = |start_frame: usize| dm_plan::run::PlanOptions {
+        model_dir: dir.path().join("no-model"),
+        bundle: scene.clone(),
+        goal: "move".into(),
+        out: dir.path().join("plan"),
+        plant: Some(truth.clone()),
+        start_frame,
+        settle_frames: 4,
+        optimizer: dm_plan::run::Optimizer::MppiGradient,
+        horizon: 10,
+        knots: 2,
+        hands: 1,
+        samples: 4,
+        iterations: 2,
+        noise_m: 0.02,
+        gradient_iters: 2,
+        learning_rate_m: 0.004,
+        window: 4,
+        replan_every: 0,
+        replan_iterations: 1,
+        observation_noise_mm: 1.5,
+        max_speed: 0.5,
+        workspace_margin_m: 0.2,
+        exact: false,
+        untrained: true,
+        camera: 0,
+        no_video: true,
+        seed: 1,
+    };
+    let at_rest = dm_plan::run::plan(&options(0), &mut |_, _, _| {}).expect("plan");
+    let later = dm_plan::run::plan(&options(config.frames - 1), &mut |_, _, _| {}).expect("plan");
+    let centre = |points: &[[f64; 3]]| -> [f64; 3] {
+        let n = points.len() as f64;
+        std::array::from_fn(|a| points.iter().map(|p| p[a]).sum::<f64>() / n)
+    };
+    let distance =
+        |a: [f64; 3], b: [f64; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+    let (rest_start, later_start) = (centre(&at_rest.executed[0]), centre(&later.executed[0]));
+    let moved = distance(rest_start, later_start);
+    assert!(moved > 0.005, "the clip moved the object by {moved} m only");
+    // `move` asks for the object 0.15 m sideways of where it starts.
+    let up = Bundle::open(&scene)
+        .expect("bundle")
+        .meta
+        .up_axis
+        .unit_vector();
+    for run in [&at_rest, &later] {
+        let (goal, start) = (centre(&run.goal.points), centre(&run.executed[0]));
+        let d: [f64; 3] = std::array::from_fn(|a| goal[a] - start[a]);
+        let h = (0..3).map(|a| d[a] * up[a]).sum::<f64>();
+        let sideways = distance(d, std::array::from_fn(|a| h * up[a]));
+        assert!(
+            (sideways - 0.15).abs() < 0.02,
+            "goal {sideways} m from the start"
+        );
+    }
+    assert!(
+        later.record.executed.final_chamfer_m < later.record.start.final_chamfer_m,
+        "executed {:.4} m vs start {:.4} m",
+        later.record.executed.final_chamfer_m,
+        later.record.start.final_chamfer_m
+    );
 }

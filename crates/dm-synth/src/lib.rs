@@ -22,7 +22,8 @@ pub use effects::{EffectName, EffectSpec, draw_hidden_effect, draw_hidden_effect
 pub use foreign::Engine;
 pub use shapes::Preset;
 pub use truth::{
-    GroundTruth, TRUTH_VERSION, TruthFile, first_truth_version, plant_world, simulate_truth,
+    GroundTruth, TRUTH_VERSION, TruthFile, clip_hand_anchors, first_truth_version, plant_world,
+    simulate_truth,
 };
 
 use serde::{Deserialize, Serialize};

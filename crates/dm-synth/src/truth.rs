@@ -541,6 +541,13 @@ pub fn plant_world(
     Ok((world, cloud.on_surface))
 }
 
+/// The true hands' anchors at every frame of the clip (without the lag a
+/// recorded track may have): what a plant replays to reach a frame of the
+/// clip.
+pub fn clip_hand_anchors(truth: &TruthFile) -> Vec<Vec<[f64; 3]>> {
+    hand_anchor_frames(&truth.hands, truth.config.frames, 0.0)
+}
+
 /// Runs the truth simulation for `config`.
 pub fn simulate_truth(
     config: &SynthConfig,
@@ -613,6 +620,29 @@ mod tests {
             .map(|p| p.map(|c| c as f32))
             .collect();
         assert_eq!(start, truth.frames[0]);
+    }
+
+    /// Replaying the clip's hands in the plant world reaches the clip's
+    /// frames, bit for bit.
+    #[test]
+    fn a_plant_world_replays_the_clip() {
+        let config = SynthConfig::tiny(Preset::Cloth, 5);
+        let truth = simulate_truth(&config, &mut |_, _, _| {}).expect("truth");
+        let (mut world, _) = plant_world(&truth.truth_file(&config), &[]).expect("plant");
+        let hands = clip_hand_anchors(&truth.truth_file(&config));
+        assert_eq!(hands.len(), config.frames);
+        let active = vec![true; hands[0].len()];
+        for t in 0..config.frames - 1 {
+            world
+                .step_frame(&hands[t], &hands[t + 1], &active)
+                .expect("step");
+        }
+        let last: Vec<[f32; 3]> = world
+            .positions()
+            .iter()
+            .map(|p| p.map(|c| c as f32))
+            .collect();
+        assert_eq!(&last, truth.frames.last().expect("frames"));
     }
 
     /// The truth's slip walls held a rope's ends one cell away for whole

@@ -108,24 +108,20 @@ fn knot_gradient_through_the_simulator_matches_finite_differences() {
     assert!(largest > 1e-6, "the knots must move the cost");
 }
 
-#[test]
-fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let scene = dir.path().join("scene");
-    let truth = dir.path().join("truth.json");
-    dm_synth::generate(
-        &SynthConfig::tiny(Preset::Toy, 5),
-        &scene,
-        &truth,
-        &mut |_, _, _| {},
-    )
-    .expect("scene");
-    let options = dm_plan::run::PlanOptions {
-        model_dir: dir.path().join("no-model"),
-        bundle: scene,
-        goal: "place".into(),
-        out: dir.path().join("plan"),
-        plant: Some(truth),
+/// A small search with the untrained model, one hand, re-planned once,
+/// carried out in the scene's truth world.
+fn small_plan(
+    dir: &std::path::Path,
+    scene: &std::path::Path,
+    truth: &std::path::Path,
+    goal: &str,
+) -> dm_plan::run::PlanOptions {
+    dm_plan::run::PlanOptions {
+        model_dir: dir.join("no-model"),
+        bundle: scene.to_path_buf(),
+        goal: goal.into(),
+        out: dir.join("plan"),
+        plant: Some(truth.to_path_buf()),
         start_frame: 0,
         settle_frames: 30,
         optimizer: dm_plan::run::Optimizer::MppiGradient,
@@ -148,7 +144,22 @@ fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
         camera: 0,
         no_video: true,
         seed: 1,
-    };
+    }
+}
+
+#[test]
+fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let truth = dir.path().join("truth.json");
+    dm_synth::generate(
+        &SynthConfig::tiny(Preset::Toy, 5),
+        &scene,
+        &truth,
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let options = small_plan(dir.path(), &scene, &truth, "place");
     let result = dm_plan::run::plan(&options, &mut |_, _, _| {}).expect("plan");
     let r = &result.record;
     assert_eq!(r.replans, 1);
@@ -181,33 +192,14 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
     let config = SynthConfig::tiny(Preset::Rope, 4);
     dm_synth::generate(&config, &scene, &truth, &mut |_, _, _| {}).expect("scene");
     let options = |start_frame: usize| dm_plan::run::PlanOptions {
-        model_dir: dir.path().join("no-model"),
-        bundle: scene.clone(),
-        goal: "move".into(),
-        out: dir.path().join("plan"),
-        plant: Some(truth.clone()),
         start_frame,
         settle_frames: 4,
-        optimizer: dm_plan::run::Optimizer::MppiGradient,
         horizon: 10,
-        knots: 2,
-        hands: 1,
         samples: 4,
         iterations: 2,
-        noise_m: 0.02,
         gradient_iters: 2,
-        learning_rate_m: 0.004,
-        window: 4,
         replan_every: 0,
-        replan_iterations: 1,
-        observation_noise_mm: 1.5,
-        max_speed: 0.5,
-        workspace_margin_m: 0.2,
-        exact: false,
-        untrained: true,
-        camera: 0,
-        no_video: true,
-        seed: 1,
+        ..small_plan(dir.path(), &scene, &truth, "move")
     };
     let at_rest = dm_plan::run::plan(&options(0), &mut |_, _, _| {}).expect("plan");
     let later = dm_plan::run::plan(&options(config.frames - 1), &mut |_, _, _| {}).expect("plan");

@@ -14,6 +14,7 @@
 //! The `dm-prep` tool also drives `dm-phystwin` (PhysTwin case import) and
 //! `dm-shape-prior` (the mesh shape prior).
 
+pub mod affine_lk;
 pub mod fill;
 pub mod lift;
 pub mod monocular;

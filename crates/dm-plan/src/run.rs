@@ -392,19 +392,11 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     // Which plant particle each planning particle and goal point is
     // observed as: the nearest at the first frame.
     let plant_index = dm_mpm::neighbors::PointIndex::new(&plant.positions()?);
-    let observed_of: Vec<usize> = planning
-        .particles()
-        .iter()
-        .map(|p| plant_index.nearest(p, 1).first().map_or(0, |n| n.0))
-        .collect();
+    let nearest_in_plant = |p: &[f64; 3]| plant_index.nearest(p, 1).first().map_or(0, |n| n.0);
+    let observed_of: Vec<usize> = planning.particles().iter().map(nearest_in_plant).collect();
     let plant_correspondences: Option<Vec<usize>> = rest_goal.particles.as_ref().map(|ids| {
         ids.iter()
-            .map(|&i| {
-                plant_index
-                    .nearest(&model.particles[i], 1)
-                    .first()
-                    .map_or(0, |n| n.0)
-            })
+            .map(|&i| nearest_in_plant(&model.particles[i]))
             .collect()
     });
     let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
@@ -439,19 +431,10 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     };
     // A named goal is the first frame's shape changed as it says; from a
     // later start, that shape where the object now lies.
-    let goal = match (
-        &start_state,
-        &correspondences,
-        rest_goal.particles.is_some(),
-    ) {
-        (Some(_), Some(ids), true) if crate::goal::is_named(&options.goal) => {
+    let goal = match (&start_state, &correspondences, &rest_goal.particles) {
+        (Some(_), Some(ids), Some(model_ids)) if crate::goal::is_named(&options.goal) => {
             let now: Vec<[f64; 3]> = ids.iter().map(|&i| start_positions[i]).collect();
-            let rest: Vec<[f64; 3]> = rest_goal
-                .particles
-                .iter()
-                .flatten()
-                .map(|&i| model.particles[i])
-                .collect();
+            let rest: Vec<[f64; 3]> = model_ids.iter().map(|&i| model.particles[i]).collect();
             rest_goal.placed_as_moved(&rest, &now, up)
         }
         _ => rest_goal,

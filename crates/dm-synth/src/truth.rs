@@ -529,11 +529,10 @@ pub fn plant_world(
             problem: "the truth file comes from MuJoCo; only dm-mpm truth worlds can be rebuilt as plants".into(),
         });
     }
-    let config = &truth.config;
-    let anchor_frames = hand_anchor_frames(&truth.hands, config.frames, 0.0);
+    let anchor_frames = clip_hand_anchors(truth);
     let TruthSetup {
         mut world, cloud, ..
-    } = truth_setup(config, &anchor_frames, extra_points)?;
+    } = truth_setup(&truth.config, &anchor_frames, extra_points)?;
     let idle = vec![false; anchor_frames[0].len()];
     for _ in 0..SETTLE_FRAMES {
         world.step_frame(&anchor_frames[0], &anchor_frames[0], &idle)?;

@@ -98,6 +98,9 @@ pub struct ResidualFrameGrads {
     pub parameters: Vec<f64>,
     /// Adjoint of the frame's start positions (through x̃ − x_t).
     pub x_start: Vec<[f64; 3]>,
+    /// Adjoints (x, v) of the history frames' starts, newest first (the
+    /// fit treats the history as data and leaves them).
+    pub history: Vec<dm_residual::features::ParticleState>,
 }
 
 /// Backward through one frame's correction and network. `carried` enters as
@@ -129,5 +132,6 @@ pub fn residual_backward<T: Real>(
     Ok(ResidualFrameGrads {
         parameters: grads.parameters,
         x_start: grads.x_start,
+        history: grads.history,
     })
 }

@@ -3,7 +3,9 @@
 //! fit's truncated backpropagation), the cost's gradient at the last frame
 //! is carried back through every frame by dm-mpm's adjoint, which also
 //! gives each frame's hand-anchor gradients; those map onto the knots
-//! through the plan's interpolation weights. Adam on the knots.
+//! through the plan's interpolation weights. With the residual network,
+//! each frame's correction is differentiated too, back to the frame starts
+//! its network saw. Adam on the knots.
 
 use dm_mpm::Real;
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -66,9 +68,13 @@ pub fn cost_and_gradient<T: Real>(
     }
     let steps = world.config().substeps_per_frame;
     let mut per_frame = vec![vec![[0.0; 3]; hands]; plan.horizon + 1];
+    // Adjoints of frame starts the residual saw as history, added once the
+    // backward pass reaches them.
+    let mut from_history: Vec<Option<ParticleGrads<T>>> = vec![None; plan.horizon];
     for t in (0..plan.horizon).rev() {
-        let grads = world.backward_frame(&tapes[t], &carried)?;
-        let scale = steps as f64 / tapes[t].len().max(1) as f64;
+        let adjoint = world.backward_frame(&tapes[t], &carried)?;
+        let grads = adjoint.frame;
+        let scale = steps as f64 / tapes[t].taped_substeps().max(1) as f64;
         for h in 0..hands {
             for a in 0..3 {
                 per_frame[t][h][a] += scale * grads.anchors_from[h][a];
@@ -76,12 +82,32 @@ pub fn cost_and_gradient<T: Real>(
             }
         }
         carried = grads.state;
+        for (frame, (x, v)) in adjoint.history {
+            let slot = from_history[frame]
+                .get_or_insert_with(|| ParticleGrads::<T>::zeros(position_grad.len()));
+            add_into(&mut slot.x, &x);
+            add_into(&mut slot.v, &v);
+        }
+        if let Some(earlier) = from_history[t].take() {
+            for (c, e) in carried.x.iter_mut().zip(&earlier.x) {
+                *c += *e;
+            }
+            for (c, e) in carried.v.iter_mut().zip(&earlier.v) {
+                *c += *e;
+            }
+        }
     }
     let mut grad = plan.knot_gradient(&per_frame);
     for (g, p) in grad.iter_mut().zip(&penalty_grad) {
         *g += p;
     }
     Ok((terminal + penalty, grad))
+}
+
+fn add_into<T: Real>(sum: &mut [Vec3<T>], add: &[[f64; 3]]) {
+    for (s, a) in sum.iter_mut().zip(add) {
+        *s += Vec3::new(T::lit(a[0]), T::lit(a[1]), T::lit(a[2]));
+    }
 }
 
 /// What the refinement reached.

@@ -93,6 +93,9 @@ pub struct PlanOptions {
     /// Plan in the model's own particles, grid and substeps (slower) instead of the playground's coarse simulation.
     #[arg(long)]
     pub exact: bool,
+    /// Apply the model's residual network in the planning world (off: physics only).
+    #[arg(long)]
+    pub residual: bool,
     /// Plan with the untrained model of the bundle instead of MODEL_DIR's (for comparison).
     #[arg(long)]
     pub untrained: bool,
@@ -148,6 +151,12 @@ impl PlanOptions {
             if !ok {
                 return Err(invalid(option, problem));
             }
+        }
+        if self.residual && self.untrained {
+            return Err(invalid(
+                "--residual",
+                "the untrained model has no trained residual network (drop --untrained or --residual)",
+            ));
         }
         if !(self.workspace_margin_m.is_finite() && self.workspace_margin_m >= 0.0) {
             return Err(invalid("--workspace-margin-m", "needs a margin ≥ 0"));

@@ -23,7 +23,7 @@ pub use crate::options::{Optimizer, PlanOptions};
 pub use crate::output::write_outputs;
 use crate::plant::Plant;
 use crate::search::{Search, shifted};
-use crate::world::{PlanningModel, rollout};
+use crate::world::{PlanningModel, PlanningWorld, rollout};
 use crate::{PlanError, invalid};
 
 /// `plan.json` (keys documented in docs/plan.md).
@@ -249,7 +249,7 @@ fn bounds(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
 /// planning world (`tracker`) accounts for it.
 fn observe(
     plant: &mut Plant,
-    tracker: &dm_mpm::World<f32>,
+    tracker: &PlanningWorld<f32>,
     observed_of: &[usize],
     noise: &Normal<f64>,
     rng: &mut ChaCha8Rng,
@@ -274,7 +274,7 @@ fn observe(
 fn start_from_clip(
     options: &PlanOptions,
     plant: &mut Plant,
-    tracker: &mut dm_mpm::World<f32>,
+    tracker: &mut PlanningWorld<f32>,
     clip_hands: &[Vec<[f64; 3]>],
     observed_of: &[usize],
     noise: &Normal<f64>,
@@ -357,7 +357,10 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     } else {
         PlayOptions::interactive()
     };
-    let planning = PlanningModel::new(&model, &play)?;
+    let mut planning = PlanningModel::new(&model, &play)?;
+    if options.residual {
+        planning = planning.with_residual(&model, dm_residual::Precision::F32)?;
+    }
     let rest_goal = read_goal(options, &bundle, &model)?;
     let correspondences: Option<Vec<usize>> = rest_goal.particles.as_ref().map(|ids| {
         let points: Vec<[f64; 3]> = ids.iter().map(|&i| model.particles[i]).collect();

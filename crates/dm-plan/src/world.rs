@@ -2,13 +2,28 @@
 //! playground simulates it (dm-play's coarse simulation: farthest-point
 //! samples of the particles, a coarser grid, the CFL-bounded substep),
 //! the hands held by the model's compliant actuators. `--exact` plans in
-//! the model's own particles, grid and substeps instead.
+//! the model's own particles, grid and substeps instead. With `--residual`
+//! the model's residual network corrects every frame of the planning world
+//! as it corrects the fitted model's (its grid and weights; the particles
+//! are the planning world's).
+
+use std::sync::Arc;
 
 use dm_model::WorldModel;
+use dm_model::residual::{
+    FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
+};
+use dm_mpm::correction::CorrectionTape;
+use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::neighbors::PointIndex;
+use dm_mpm::real::Vec3;
+use dm_mpm::state::Particles;
+use dm_mpm::tape::{FrameGrads, FrameTape};
 use dm_mpm::{ActuatorConfig, ActuatorMode, Real, World};
 use dm_play::PlayOptions;
 use dm_play::session::CoarseModel;
+use dm_residual::features::ParticleState;
+use dm_residual::{FrameInputs, Precision, Residual};
 
 use crate::PlanError;
 use crate::actions::ActionPlan;
@@ -19,6 +34,7 @@ pub struct PlanningModel {
     coarse: CoarseModel,
     actuator: ActuatorConfig,
     experts: dm_model::ExpertChoice,
+    residual: Option<Arc<Residual>>,
 }
 
 impl PlanningModel {
@@ -39,7 +55,30 @@ impl PlanningModel {
             coarse,
             actuator,
             experts: model.options.experts,
+            residual: None,
         })
+    }
+
+    /// The same world with `model`'s residual network correcting every
+    /// frame (`precision`: f32 for planning, f64 for gradient checks); an
+    /// error when the model has none.
+    pub fn with_residual(
+        mut self,
+        model: &WorldModel,
+        precision: Precision,
+    ) -> Result<Self, PlanError> {
+        let state = model.residual.as_ref().ok_or_else(|| {
+            crate::invalid(
+                "--residual",
+                "the model has no residual network (fitted with `--residual none`)",
+            )
+        })?;
+        self.residual = Some(Arc::new(state.network(precision)?));
+        Ok(self)
+    }
+
+    pub fn has_residual(&self) -> bool {
+        self.residual.is_some()
     }
 
     /// First-frame particles of the planning world (surface first).
@@ -61,16 +100,21 @@ impl PlanningModel {
     }
 
     /// A fresh world at the first frame.
-    pub fn world<T: Real>(&self) -> Result<World<T>, PlanError> {
+    pub fn world<T: Real>(&self) -> Result<PlanningWorld<T>, PlanError> {
         let mut material = self.coarse.material::<T>(1.0, None);
         self.experts.apply_to(&mut material);
-        Ok(World::new(
+        let world = World::new(
             self.coarse.physics.clone(),
             &self.coarse.body.particles,
             self.coarse.body.particle_volume,
             material,
             self.actuator,
-        )?)
+        )?;
+        Ok(PlanningWorld {
+            world,
+            residual: self.residual.clone(),
+            starts: Vec::new(),
+        })
     }
 
     /// The planning-world particle nearest each of `points` at the first frame.
@@ -83,11 +127,157 @@ impl PlanningModel {
     }
 }
 
+/// The MPM world of a plan and, with the residual, the frame starts its
+/// network sees as history (since the state was last set).
+#[derive(Debug)]
+pub struct PlanningWorld<T: Real> {
+    world: World<T>,
+    residual: Option<Arc<Residual>>,
+    starts: Vec<FrameStart>,
+}
+
+/// What the adjoint of one frame needs: the substeps' tape and, with the
+/// residual, the correction's inputs, Δv and tape.
+#[derive(Debug)]
+pub struct FrameRecord<T: Real> {
+    /// The frame's index since the state was last set.
+    frame: usize,
+    substeps: FrameTape<T>,
+    correction: Option<(FrameInputs, Vec<[f64; 3]>, CorrectionTape)>,
+}
+
+/// The adjoint of one frame: back to its start, and, with the residual, to
+/// the earlier frame starts its network saw as history.
+#[derive(Debug)]
+pub struct FrameAdjoint<T> {
+    pub frame: FrameGrads<T>,
+    /// (frame whose start it is, (∂x, ∂v)), caller's particle order.
+    pub history: Vec<(usize, ParticleState)>,
+}
+
+impl<T: Real> FrameRecord<T> {
+    /// Substeps differentiated exactly.
+    pub fn taped_substeps(&self) -> usize {
+        self.substeps.len()
+    }
+}
+
+impl<T: Real> PlanningWorld<T> {
+    /// Starts from `state`; the residual's history starts again there.
+    pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), PlanError> {
+        self.world.set_state(state)?;
+        self.starts.clear();
+        Ok(())
+    }
+
+    pub fn state(&self) -> Particles<T> {
+        self.world.state()
+    }
+
+    pub fn positions(&self) -> Vec<[f64; 3]> {
+        self.world.positions()
+    }
+
+    pub fn config(&self) -> &dm_mpm::PhysicsConfig {
+        self.world.config()
+    }
+
+    pub fn release_grasps(&mut self) {
+        self.world.release_grasps();
+    }
+
+    /// One frame with the hands moving from `from` to `to` (grasping where
+    /// `grasp`), then the residual's correction.
+    pub fn step_frame(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        grasp: &[bool],
+    ) -> Result<(), PlanError> {
+        self.starts.push(frame_start(&self.world));
+        self.world.step_frame(from, to, grasp)?;
+        self.correct()?;
+        Ok(())
+    }
+
+    /// One frame without hands.
+    pub fn step_frame_free(&mut self) -> Result<(), PlanError> {
+        self.step_frame(&[], &[], &[])
+    }
+
+    /// [`Self::step_frame`], recording its last `window` substeps and the
+    /// correction for [`Self::backward_frame`].
+    pub fn step_frame_taped(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        grasp: &[bool],
+        window: usize,
+    ) -> Result<FrameRecord<T>, PlanError> {
+        self.starts.push(frame_start(&self.world));
+        let t = self.starts.len() - 1;
+        let substeps = self.world.step_frame_taped(from, to, grasp, window)?;
+        let correction = match &self.residual {
+            Some(network) => {
+                let inputs = frame_inputs(&self.world, &self.starts, t);
+                let (dv, tape) = apply_residual(&mut self.world, network, &self.starts, t)?;
+                Some((inputs, dv, tape))
+            }
+            None => None,
+        };
+        Ok(FrameRecord {
+            frame: t,
+            substeps,
+            correction,
+        })
+    }
+
+    /// Carries `carried` (the adjoint of the state after the frame) back
+    /// through the correction and the substeps to the frame's start, and
+    /// to the history frames' starts the correction saw.
+    pub fn backward_frame(
+        &mut self,
+        record: &FrameRecord<T>,
+        carried: &ParticleGrads<T>,
+    ) -> Result<FrameAdjoint<T>, PlanError> {
+        let (Some(network), Some((inputs, dv, tape))) = (&self.residual, &record.correction) else {
+            return Ok(FrameAdjoint {
+                frame: self.world.backward_frame(&record.substeps, carried)?,
+                history: Vec::new(),
+            });
+        };
+        let mut after_substeps = carried.clone();
+        let grads = residual_backward(network, inputs, dv, tape, &mut after_substeps, 0.0)?;
+        let mut frame = self
+            .world
+            .backward_frame(&record.substeps, &after_substeps)?;
+        for (c, g) in frame.state.x.iter_mut().zip(&grads.x_start) {
+            *c += Vec3::new(T::lit(g[0]), T::lit(g[1]), T::lit(g[2]));
+        }
+        // History k is the start of frame t − 1 − k, clamped at 0 (`history_of`).
+        let history = grads
+            .history
+            .into_iter()
+            .enumerate()
+            .map(|(k, adjoint)| (record.frame.saturating_sub(k + 1), adjoint))
+            .collect();
+        Ok(FrameAdjoint { frame, history })
+    }
+
+    fn correct(&mut self) -> Result<(), PlanError> {
+        if let Some(network) = &self.residual {
+            let t = self.starts.len() - 1;
+            apply_residual(&mut self.world, network, &self.starts, t)?;
+        }
+        Ok(())
+    }
+}
+
 /// Steps `world` through `plan` from its frame 0 (where the hands grasp
 /// when `grasp_first`) to its horizon; positions of every frame, frame 0
 /// first.
 pub fn rollout<T: Real>(
-    world: &mut World<T>,
+    world: &mut PlanningWorld<T>,
     plan: &ActionPlan,
     grasp_first: bool,
 ) -> Result<Vec<Vec<[f64; 3]>>, PlanError> {

@@ -12,7 +12,12 @@ use dm_plan::world::PlanningModel;
 use dm_play::PlayOptions;
 use dm_synth::{Preset, SynthConfig};
 
-fn tiny(dir: &std::path::Path, preset: Preset, seed: u64) -> (Bundle, WorldModel) {
+fn tiny(
+    dir: &std::path::Path,
+    preset: Preset,
+    seed: u64,
+    residual: ResidualKind,
+) -> (Bundle, WorldModel) {
     let scene = dir.join("scene");
     dm_synth::generate(
         &SynthConfig::tiny(preset, seed),
@@ -23,7 +28,7 @@ fn tiny(dir: &std::path::Path, preset: Preset, seed: u64) -> (Bundle, WorldModel
     .expect("scene");
     let bundle = Bundle::open(&scene).expect("bundle");
     let options = ModelOptions {
-        residual: ResidualKind::None,
+        residual,
         ..ModelOptions::default()
     };
     let model = WorldModel::from_bundle(&bundle, &options).expect("model");
@@ -37,9 +42,38 @@ fn tiny(dir: &std::path::Path, preset: Preset, seed: u64) -> (Bundle, WorldModel
 /// neighbours stay put within the ±1e-6 m steps.
 #[test]
 fn knot_gradient_through_the_simulator_matches_finite_differences() {
+    knot_gradient_matches_finite_differences(false, 1e-4);
+}
+
+/// As above with a residual network (non-zero weights) correcting every
+/// frame: its adjoint, including the earlier frame starts it sees as
+/// history, joins the physics adjoint. Tolerance 1e-5 relative: here the
+/// history's share of the gradient is about 1e-4 of it (dropping it gives
+/// 9e-5), the exact adjoint agrees to 2e-6.
+#[test]
+fn knot_gradient_through_the_residual_matches_finite_differences() {
+    knot_gradient_matches_finite_differences(true, 1e-5);
+}
+
+fn knot_gradient_matches_finite_differences(residual: bool, tolerance: f64) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let (bundle, model) = tiny(dir.path(), Preset::Rope, 3);
-    let planning = PlanningModel::new(&model, &PlayOptions::interactive()).expect("planning model");
+    let kind = if residual {
+        ResidualKind::Pgnd
+    } else {
+        ResidualKind::None
+    };
+    let (bundle, mut model) = tiny(dir.path(), Preset::Rope, 3, kind);
+    let mut planning =
+        PlanningModel::new(&model, &PlayOptions::interactive()).expect("planning model");
+    if let Some(state) = model.residual.as_mut() {
+        // The fresh network's last layer is zero: give every weight a value.
+        state.parameters = (0..state.parameters.len())
+            .map(|i| 0.3 * ((i as f64) * 0.37 + 0.1).sin())
+            .collect();
+        planning = planning
+            .with_residual(&model, dm_residual::Precision::F64)
+            .expect("residual");
+    }
     let up = bundle.meta.up_axis.unit_vector();
     let goal = Goal::named(
         "move",
@@ -100,12 +134,35 @@ fn knot_gradient_through_the_simulator_matches_finite_differences() {
         largest = largest.max(fd.abs());
         let error = (fd - grad[i]).abs() / fd.abs().max(grad[i].abs()).max(1e-9);
         assert!(
-            error < 1e-4,
+            error < tolerance,
             "knot parameter {i}: adjoint {:.8e}, finite differences {fd:.8e}",
             grad[i]
         );
     }
     assert!(largest > 1e-6, "the knots must move the cost");
+    if residual {
+        // The residual must matter: the same plan without it costs differently.
+        let physics_only =
+            PlanningModel::new(&model, &PlayOptions::interactive()).expect("planning model");
+        let (without, _) =
+            cost_and_gradient::<f64>(&physics_only, None, &plan, &cost, &weights, usize::MAX)
+                .expect("cost");
+        let (with, _) =
+            cost_and_gradient::<f64>(&planning, None, &plan, &cost, &weights, usize::MAX)
+                .expect("cost");
+        assert!(
+            (with - without).abs() > 1e-2 * without.abs(),
+            "residual on {with:e}, off {without:e}"
+        );
+        // A model without a network refuses `--residual`, naming it.
+        let mut bare = model.clone();
+        bare.residual = None;
+        let refused = PlanningModel::new(&bare, &PlayOptions::interactive())
+            .expect("planning model")
+            .with_residual(&bare, dm_residual::Precision::F32)
+            .expect_err("no network");
+        assert!(refused.to_string().contains("--residual"), "{refused}");
+    }
 }
 
 /// A small search with the untrained model, one hand, re-planned once,
@@ -141,6 +198,7 @@ fn small_plan(
         workspace_margin_m: 0.2,
         exact: false,
         untrained: true,
+        residual: false,
         camera: 0,
         no_video: true,
         seed: 1,

@@ -9,7 +9,7 @@
 //! B-spline weights sum to one), so |Δv| ≤ α holds exactly.
 
 use crate::ResidualError;
-use crate::features::{CHANNELS, FrameInputs, HISTORY};
+use crate::features::{CHANNELS, FrameInputs, HISTORY, ParticleState};
 use crate::kernels::{
     Bound, Dense, GroupNorm, NormTape, Rows, Scalar, add_into, column_max, relu, relu_backward,
 };
@@ -102,7 +102,14 @@ pub struct ResidualGrads {
     pub x_tilde: Vec<[f64; 3]>,
     pub v_tilde: Vec<[f64; 3]>,
     pub x_start: Vec<[f64; 3]>,
+    /// (∂x, ∂v) of each history frame, newest first (the fit treats the
+    /// history as data; a planner differentiating a whole rollout uses
+    /// them).
+    pub history: Vec<ParticleState>,
 }
+
+/// (∂x, ∂v) rows of each history frame, newest first.
+type HistoryRows<T> = Vec<[Rows<T>; 2]>;
 
 /// Where each named weight tensor sits in the flat parameter vector
 /// (tensors sorted by name, each row-major).
@@ -304,6 +311,25 @@ impl<'a, T: Scalar> Net<'a, T> {
         m
     }
 
+    /// (∂x, ∂v) of each history frame (newest first) from the channels'
+    /// gradient.
+    fn history_backward(grad: &Rows<T>) -> HistoryRows<T> {
+        let n = grad.rows();
+        (0..HISTORY)
+            .map(|k| {
+                let mut out = [Rows::zeros(n, 3), Rows::zeros(n, 3)];
+                for p in 0..n {
+                    let g = grad.row(p);
+                    for a in 0..3 {
+                        out[0].data[3 * p + a] = g[9 + 6 * k + a];
+                        out[1].data[3 * p + a] = g[12 + 6 * k + a];
+                    }
+                }
+                out
+            })
+            .collect()
+    }
+
     /// (∂x̃, ∂ṽ, ∂x_t) from the channels' gradient (the centroid is x̃'s).
     fn channels_backward(grad: &Rows<T>) -> [Rows<T>; 3] {
         let n = grad.rows();
@@ -494,8 +520,9 @@ impl<'a, T: Scalar> Net<'a, T> {
         out
     }
 
-    /// The flat parameter gradient and (∂x̃, ∂ṽ, ∂x_t) of ⟨Δv, `grad`⟩.
-    fn backward(&self, tape: &Tape<T>, grad: &Rows<T>) -> (Vec<T>, [Rows<T>; 3]) {
+    /// The flat parameter gradient, (∂x̃, ∂ṽ, ∂x_t) and the history's
+    /// (∂x, ∂v) of ⟨Δv, `grad`⟩.
+    fn backward(&self, tape: &Tape<T>, grad: &Rows<T>) -> (Vec<T>, [Rows<T>; 3], HistoryRows<T>) {
         let mut flat = vec![T::zero(); self.layout.total];
         let (d_channels, d_x_weights) = match &tape.body {
             BodyTape::Mlp { hidden, raw } => {
@@ -538,7 +565,7 @@ impl<'a, T: Scalar> Net<'a, T> {
         if let Some(dx) = d_x_weights {
             add_into(&mut inputs[0].data, &dx.data);
         }
-        (flat, inputs)
+        (flat, inputs, Self::history_backward(&d_channels))
     }
 
     /// Backward through decoder, transfers and encoder: (∂channels, ∂x̃
@@ -757,9 +784,7 @@ impl Residual {
     }
 
     /// Vector-Jacobian product: the gradients of ⟨Δv(inputs), `grad_dv`⟩
-    /// with respect to the parameters and to x̃, ṽ and x_t (the history is
-    /// treated as data: truncated back-propagation across frames goes
-    /// through the physics state only).
+    /// with respect to the parameters, x̃, ṽ, x_t and the history.
     pub fn vjp(
         &self,
         inputs: &FrameInputs,
@@ -779,12 +804,16 @@ impl Residual {
             grad_dv: &[[f64; 3]],
         ) -> ResidualGrads {
             let (_, tape) = net.forward(inputs);
-            let (flat, [x, v, s]) = net.backward(&tape, &to_rows(grad_dv));
+            let (flat, [x, v, s], history) = net.backward(&tape, &to_rows(grad_dv));
             ResidualGrads {
                 parameters: flat.iter().map(|g| g.widen()).collect(),
                 x_tilde: from_rows(&x),
                 v_tilde: from_rows(&v),
                 x_start: from_rows(&s),
+                history: history
+                    .iter()
+                    .map(|[hx, hv]| (from_rows(hx), from_rows(hv)))
+                    .collect(),
             }
         }
         Ok(match &self.weights {

@@ -129,6 +129,24 @@ fn vjp_matches_finite_differences(kind: ResidualKind, particles: usize) {
             objective(&net, &moved)
         });
     }
+    for k in 0..inputs.history.len() {
+        for (name, velocity) in [("x", false), ("v", true)] {
+            let direction = directions();
+            let (gx, gv) = &grads.history[k];
+            let analytic = dot(if velocity { gv } else { gx }, &direction);
+            check(
+                &format!("{kind:?} history[{k}].{name}"),
+                analytic,
+                &mut |h| {
+                    let mut moved = inputs.clone();
+                    let (hx, hv) = &mut moved.history[k];
+                    let target = if velocity { hv } else { hx };
+                    *target = shifted(target, &direction, h);
+                    objective(&net, &moved)
+                },
+            );
+        }
+    }
     let base = net.parameters().expect("parameters");
     let direction: Vec<f64> = (0..base.len()).map(|_| r()).collect();
     let analytic: f64 = grads

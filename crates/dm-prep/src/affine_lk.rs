@@ -53,6 +53,19 @@ impl WindowWarp {
     }
 }
 
+impl WindowWarp {
+    /// How far the warp is from a plain shift: the largest change of the
+    /// linear part's entries or of the gain.
+    pub fn departure(&self) -> f32 {
+        let identity = [1.0, 0.0, 0.0, 1.0];
+        self.a
+            .iter()
+            .zip(identity)
+            .map(|(a, i)| (a - i).abs())
+            .fold((self.gain - 1.0).abs(), f32::max)
+    }
+}
+
 /// Settings of the window fit.
 #[derive(Clone, Copy, Debug)]
 pub struct AffineFit {

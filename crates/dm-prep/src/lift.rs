@@ -27,6 +27,14 @@ pub struct LiftOptions {
     /// ...and are fused when their median distance over the frames both
     /// see stays below this (m).
     pub fuse_agreement_m: f64,
+    /// Object tracks are smoothed in time over this many frames either
+    /// side (`smooth_in_time`); 0: not at all.
+    #[serde(default = "default_smooth_half_frames")]
+    pub smooth_half_frames: usize,
+}
+
+fn default_smooth_half_frames() -> usize {
+    5
 }
 
 impl Default for LiftOptions {
@@ -37,6 +45,7 @@ impl Default for LiftOptions {
             depth_spread_m: 0.01,
             fuse_radius_m: 0.003,
             fuse_agreement_m: 0.004,
+            smooth_half_frames: default_smooth_half_frames(),
         }
     }
 }
@@ -150,6 +159,76 @@ pub fn lift_camera(
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Smooths each track in time: over each run of consecutive valid frames,
+/// a point becomes the value at its frame of the least-squares quadratic
+/// through the run's points within `half` frames of it (Savitzky–Golay
+/// where the whole window lies in the run). Sensor depth noise is
+/// independent from frame to frame; a material point moves smoothly.
+/// Runs shorter than 3 frames are left alone.
+pub fn smooth_in_time(tracks: &mut Tracks3d, half: usize) {
+    if half == 0 {
+        return;
+    }
+    let frames = tracks.points.len();
+    for k in 0..tracks.len() {
+        let (points, valid) = tracks.column(k);
+        let mut t = 0;
+        while t < frames {
+            if !valid[t] {
+                t += 1;
+                continue;
+            }
+            let start = t;
+            while t < frames && valid[t] {
+                t += 1;
+            }
+            let run = start..t;
+            if run.len() < 3 {
+                continue;
+            }
+            for centre in run.clone() {
+                let lo = centre.saturating_sub(half).max(run.start);
+                let hi = (centre + half + 1).min(run.end);
+                tracks.points[centre][k] =
+                    quadratic_at_zero((lo..hi).map(|s| (s as f64 - centre as f64, points[s])));
+            }
+        }
+    }
+}
+
+/// The value at 0 of the least-squares quadratic through at least 3
+/// `(offset, point)` samples.
+fn quadratic_at_zero(samples: impl Iterator<Item = (f64, [f64; 3])>) -> [f64; 3] {
+    // Normal equations of p(s) = c0 + c1 s + c2 s².
+    let mut m = [[0.0f64; 3]; 3];
+    let mut b = [[0.0f64; 3]; 3];
+    for (s, p) in samples {
+        let basis = [1.0, s, s * s];
+        for i in 0..3 {
+            for j in 0..3 {
+                m[i][j] += basis[i] * basis[j];
+            }
+            for a in 0..3 {
+                b[a][i] += basis[i] * p[a];
+            }
+        }
+    }
+    let det3 = |m: &[[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let det = det3(&m);
+    // Cramer's rule for c0: replace the first column by b.
+    std::array::from_fn(|a| {
+        let mut m0 = m;
+        for i in 0..3 {
+            m0[i][0] = b[a][i];
+        }
+        det3(&m0) / det
+    })
 }
 
 /// Fuses the tracks of several cameras: only tracks valid at frame 0 are
@@ -488,6 +567,64 @@ mod tests {
                 &options
             )
             .is_none()
+        );
+    }
+
+    /// A point on a quadratic path comes through unchanged; seeded noise
+    /// on it shrinks; a frame without the point splits the runs and stays
+    /// as it was.
+    #[test]
+    fn smoothing_in_time_keeps_quadratic_motion_and_shrinks_noise() {
+        const FRAMES: usize = 40;
+        let path = |t: usize| {
+            let s = t as f64 / 30.0;
+            [0.1 + 0.2 * s, -0.05 * s + 0.3 * s * s, 0.02]
+        };
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut noise = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.006
+        };
+        let gap = 17;
+        let mut tracks = Tracks3d {
+            points: (0..FRAMES)
+                .map(|t| {
+                    let p = path(t);
+                    vec![p, [p[0] + noise(), p[1] + noise(), p[2] + noise()]]
+                })
+                .collect(),
+            valid: (0..FRAMES).map(|t| vec![t != gap, t != gap]).collect(),
+        };
+        tracks.points[gap] = vec![[9.0; 3], [9.0; 3]];
+        let noisy = tracks.clone();
+        smooth_in_time(&mut tracks, 2);
+        let error = |tracks: &Tracks3d| {
+            let squares: f64 = (0..FRAMES)
+                .filter(|&t| t != gap)
+                .map(|t| {
+                    let p = path(t);
+                    (0..3)
+                        .map(|a| (tracks.points[t][1][a] - p[a]).powi(2))
+                        .sum::<f64>()
+                })
+                .sum();
+            (squares / (FRAMES - 1) as f64).sqrt()
+        };
+        for t in (0..FRAMES).filter(|&t| t != gap) {
+            for a in 0..3 {
+                assert!(
+                    (tracks.points[t][0][a] - path(t)[a]).abs() < 1e-12,
+                    "frame {t}"
+                );
+            }
+        }
+        assert_eq!(tracks.points[gap], vec![[9.0; 3], [9.0; 3]]);
+        let (before, after) = (error(&noisy), error(&tracks));
+        assert!(
+            after < 0.8 * before,
+            "RMS error {after} m against {before} m before"
         );
     }
 

@@ -22,6 +22,7 @@ use crate::fill::{
 };
 use crate::lift::{
     LiftOptions, Tracks3d, follow_hand_centroids, fuse_cameras, hold_last, lift_camera, mask_cloud,
+    smooth_in_time,
 };
 use crate::segment::{SegmentOptions, segment_frame};
 use crate::track2d::{TrackOptions, Tracks2d, grey_mat, on_mask, query_pixels, track_points};
@@ -709,6 +710,7 @@ impl Prep {
             progress("lift", c + 1, self.cameras.len());
         }
         let mut object = fuse_cameras(&object, &self.options.lift);
+        smooth_in_time(&mut object, self.options.lift.smooth_half_frames);
         if object.is_empty() {
             return Err(PrepError::Stage {
                 stage: "lift",

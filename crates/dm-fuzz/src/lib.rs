@@ -3,8 +3,11 @@
 //! committed seed inputs (`fuzz/corpus/TARGET/`), mutates them with a
 //! seeded generator ([`mutate`]) and feeds every mutant to the parser: an
 //! `Err` is the expected answer to bad input, a panic or an input slower
-//! than [`SLOW_INPUT_SECONDS`] is a finding, saved for a regression test.
+//! than [`SLOW_INPUT_SECONDS`] is a finding, saved for a regression test,
+//! and so is one holding more than [`MAX_INPUT_BYTES`] of heap at once
+//! (measured where [`alloc_meter::MeteredAllocator`] is installed).
 
+pub mod alloc_meter;
 pub mod kill;
 pub mod mutate;
 pub mod targets;
@@ -18,6 +21,10 @@ use std::time::Instant;
 
 /// An input taking longer than this counts as a hang.
 pub const SLOW_INPUT_SECONDS: f64 = 2.0;
+
+/// An input whose parse holds more heap than this at once counts as an
+/// unbounded allocation (the largest valid seed needs a few MiB).
+pub const MAX_INPUT_BYTES: usize = 256 << 20;
 
 /// Why a fuzz run could not start.
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +51,9 @@ pub struct Report {
     pub accepted: u64,
     pub seconds: f64,
     pub slowest_input_seconds: f64,
+    /// The most heap one input held at once (bytes); `None` without the
+    /// metered allocator.
+    pub largest_input_bytes: Option<usize>,
     pub findings: Vec<Finding>,
 }
 
@@ -70,6 +80,7 @@ pub fn run(target: Target, corpus: &Path, seed: u64, budget: Budget) -> Result<R
         accepted: 0,
         seconds: 0.0,
         slowest_input_seconds: 0.0,
+        largest_input_bytes: alloc_meter::is_installed().then_some(0),
         findings: Vec::new(),
     };
     // The seeds themselves first, then their mutants.
@@ -82,9 +93,20 @@ pub fn run(target: Target, corpus: &Path, seed: u64, budget: Budget) -> Result<R
         };
         next += 1;
         let clock = Instant::now();
+        let heap = alloc_meter::start();
         let outcome =
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| harness.feed(&input)));
         let took = clock.elapsed().as_secs_f64();
+        let held = alloc_meter::peak_since(heap);
+        if let Some(largest) = report.largest_input_bytes.as_mut() {
+            *largest = (*largest).max(held);
+            if held > MAX_INPUT_BYTES {
+                report.findings.push(Finding {
+                    input: input.clone(),
+                    what: format!("allocation: {} MiB held at once", held >> 20),
+                });
+            }
+        }
         report.inputs += 1;
         report.slowest_input_seconds = report.slowest_input_seconds.max(took);
         match outcome {

@@ -24,12 +24,14 @@ pub enum Target {
     BundleNpy,
     /// A model directory's model.json.
     ModelJson,
+    /// A fit's checkpoint.json (read by `dm-fit --resume`).
+    Checkpoint,
     /// The playground's WebSocket commands.
     PlayCommand,
 }
 
 impl Target {
-    pub const ALL: [Target; 9] = [
+    pub const ALL: [Target; 10] = [
         Target::Pickle,
         Target::Ply,
         Target::Obj,
@@ -38,6 +40,7 @@ impl Target {
         Target::BundleJson,
         Target::BundleNpy,
         Target::ModelJson,
+        Target::Checkpoint,
         Target::PlayCommand,
     ];
 
@@ -51,6 +54,7 @@ impl Target {
             Target::BundleJson => "bundle-json",
             Target::BundleNpy => "bundle-npy",
             Target::ModelJson => "model-json",
+            Target::Checkpoint => "checkpoint",
             Target::PlayCommand => "play-command",
         }
     }
@@ -67,6 +71,7 @@ impl Target {
                 | Target::Manifest
                 | Target::BundleJson
                 | Target::ModelJson
+                | Target::Checkpoint
                 | Target::PlayCommand
         )
     }
@@ -184,6 +189,9 @@ impl Harness {
             }
             Target::ModelJson => {
                 dm_bundle::read_json::<dm_model::WorldModel>(&file("model.json")).is_ok()
+            }
+            Target::Checkpoint => {
+                dm_bundle::read_json::<dm_fit::run::Checkpoint>(&file("checkpoint.json")).is_ok()
             }
             Target::PlayCommand => {
                 serde_json::from_slice::<dm_play::server::Command>(input).is_ok()

@@ -1,8 +1,12 @@
 //! The quick fuzz run of `make test`: every target for a few seconds from
-//! the committed corpus (the long run is `make fuzz`). A panic or a hang
-//! on any input fails, printing the input's bytes.
+//! the committed corpus (the long run is `make fuzz`). A panic, a hang or
+//! an input holding more than `MAX_INPUT_BYTES` of heap fails, printing
+//! the input's bytes.
 
 use dm_fuzz::{Budget, Target, default_corpus, run};
+
+#[global_allocator]
+static HEAP: dm_fuzz::alloc_meter::MeteredAllocator = dm_fuzz::alloc_meter::MeteredAllocator;
 
 /// Seconds per target: every target gets thousands of inputs.
 const QUICK_SECONDS: f64 = 8.0;
@@ -29,6 +33,12 @@ fn quick(target: Target) {
         "{}: not even the seeds were accepted",
         target.name()
     );
+    // Inputs past `MAX_INPUT_BYTES` are findings; the meter must be on to see them.
+    assert!(
+        report.largest_input_bytes.is_some_and(|b| b > 0),
+        "{}: the heap meter saw nothing",
+        target.name()
+    );
     if let Some(finding) = report.findings.first() {
         panic!(
             "{}: {} findings; the first, {}, on input {:?}",
@@ -38,6 +48,21 @@ fn quick(target: Target) {
             String::from_utf8_lossy(&finding.input)
         );
     }
+}
+
+/// The meter sees what a thread holds at its peak, not what it has freed.
+#[test]
+fn the_heap_meter_sees_a_large_allocation() {
+    let start = dm_fuzz::alloc_meter::start();
+    let big = std::hint::black_box(vec![0u8; dm_fuzz::MAX_INPUT_BYTES + 1]);
+    drop(big);
+    let small = std::hint::black_box(vec![0u8; 1024]);
+    drop(small);
+    assert!(dm_fuzz::alloc_meter::peak_since(start) > dm_fuzz::MAX_INPUT_BYTES);
+    let again = dm_fuzz::alloc_meter::start();
+    let small = std::hint::black_box(vec![0u8; 1024]);
+    drop(small);
+    assert!(dm_fuzz::alloc_meter::peak_since(again) < 1 << 20);
 }
 
 #[test]
@@ -71,6 +96,10 @@ fn bundle_npy() {
 #[test]
 fn model_json() {
     quick(Target::ModelJson);
+}
+#[test]
+fn checkpoint() {
+    quick(Target::Checkpoint);
 }
 #[test]
 fn play_command() {

@@ -6,11 +6,14 @@ use clap::Parser;
 use dm_fuzz::{Budget, Target};
 use std::path::PathBuf;
 
+#[global_allocator]
+static HEAP: dm_fuzz::alloc_meter::MeteredAllocator = dm_fuzz::alloc_meter::MeteredAllocator;
+
 #[derive(Parser, Debug)]
 #[command(name = "dm-fuzz", about = "Fuzz the parsers of outside input")]
 struct Args {
     /// Targets to fuzz (default: all): pickle, ply, obj, glb, manifest,
-    /// bundle-json, bundle-npy, model-json, play-command.
+    /// bundle-json, bundle-npy, model-json, checkpoint, play-command.
     targets: Vec<String>,
     /// Inputs per target.
     #[arg(long, default_value_t = 1_000_000)]
@@ -45,18 +48,21 @@ fn main() -> Result<()> {
         seconds: args.seconds,
     };
     let mut findings = 0;
-    println!("target        inputs   accepted   seconds   inputs/s   slowest ms   findings");
+    println!(
+        "target        inputs   accepted   seconds   inputs/s   slowest ms   largest MiB   findings"
+    );
     for target in targets {
         let report = dm_fuzz::run(target, &corpus, args.seed, budget)
             .with_context(|| format!("fuzzing {}", target.name()))?;
         println!(
-            "{:<12} {:>8} {:>10} {:>9.1} {:>10.0} {:>12.2} {:>10}",
+            "{:<12} {:>8} {:>10} {:>9.1} {:>10.0} {:>12.2} {:>13.2} {:>10}",
             target.name(),
             report.inputs,
             report.accepted,
             report.seconds,
             report.inputs as f64 / report.seconds.max(1e-9),
             1e3 * report.slowest_input_seconds,
+            report.largest_input_bytes.unwrap_or(0) as f64 / f64::from(1u32 << 20),
             report.findings.len()
         );
         for (i, finding) in report.findings.iter().enumerate() {
@@ -73,7 +79,7 @@ fn main() -> Result<()> {
     }
     if findings > 0 {
         bail!(
-            "{findings} inputs panicked or hung; saved under {}",
+            "{findings} inputs panicked, hung or held too much heap; saved under {}",
             args.findings.display()
         );
     }

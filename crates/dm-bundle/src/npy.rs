@@ -49,6 +49,41 @@ pub fn shape_string(shape: &[usize]) -> String {
     }
 }
 
+/// Refuses a header whose announced length runs past the file: the
+/// header parser allocates that length before reading it.
+fn check_header_length(path: &Path, bytes: &[u8]) -> Result<()> {
+    // Magic (6 bytes), version (2), then the length: 2 bytes in version 1,
+    // 4 in versions 2 and 3 (little-endian).
+    let (announced, prefix) = match bytes.get(6) {
+        Some(1) => (
+            bytes
+                .get(8..10)
+                .map(|b| usize::from(u16::from_le_bytes([b[0], b[1]]))),
+            10,
+        ),
+        Some(2 | 3) => (
+            bytes
+                .get(8..12)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize),
+            12,
+        ),
+        // Not a version this reader knows: the header parser says so.
+        _ => return Ok(()),
+    };
+    match announced {
+        Some(length) if length <= bytes.len().saturating_sub(prefix) => Ok(()),
+        _ => Err(BundleError::new(
+            path,
+            "header",
+            format!(
+                "the .npy header announces {} bytes but the file has {} after its prefix (truncated or not a .npy file)",
+                announced.map_or("?".into(), |l| l.to_string()),
+                bytes.len().saturating_sub(prefix)
+            ),
+        )),
+    }
+}
+
 /// Reads a `.npy` file whose dtype and number of dimensions must match `A` and `D`.
 pub fn read_npy_checked<A, S, D>(path: &Path) -> Result<ArrayBase<S, D>>
 where
@@ -57,6 +92,7 @@ where
     D: Dimension,
 {
     let bytes = fs::read(path).map_err(|e| BundleError::io(path, "reading", &e))?;
+    check_header_length(path, &bytes)?;
     let mut after_header: &[u8] = &bytes;
     let header = Header::from_reader(&mut after_header).map_err(|e| {
         BundleError::new(
@@ -136,4 +172,24 @@ where
     writer
         .flush()
         .map_err(|e| BundleError::io(path, "writing", &e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A version-2 header announcing 3 GiB in a 64-byte file is refused
+    /// before anything is allocated for it, naming the header.
+    #[test]
+    fn a_header_longer_than_its_file_is_refused() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("points.npy");
+        let mut bytes = b"\x93NUMPY\x02\x00".to_vec();
+        bytes.extend_from_slice(&(3u32 << 30).to_le_bytes());
+        bytes.resize(64, b' ');
+        fs::write(&path, &bytes).expect("write");
+        let error = read_npy_checked::<f32, ndarray::OwnedRepr<f32>, ndarray::Ix1>(&path)
+            .expect_err("refused");
+        assert!(error.to_string().contains("header"), "{error}");
+    }
 }

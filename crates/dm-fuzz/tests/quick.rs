@@ -109,7 +109,7 @@ fn play_command() {
 /// Every input a fuzz run found (`fuzz/regressions/TARGET/`) is refused
 /// with an error, without a panic.
 #[test]
-fn past_findings_are_refused_without_a_panic() {
+fn past_findings_are_refused_without_a_panic_or_a_large_allocation() {
     let root = default_corpus().join("../regressions");
     let mut checked = 0;
     for target in Target::ALL {
@@ -120,12 +120,20 @@ fn past_findings_are_refused_without_a_panic() {
         for entry in entries {
             let path = entry.expect("entry").path();
             let input = std::fs::read(&path).expect("read");
+            let heap = dm_fuzz::alloc_meter::start();
             let accepted = dm_fuzz::feed_once(target, &input)
                 .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             assert!(
                 !accepted,
                 "{}: a malformed input was accepted",
                 path.display()
+            );
+            let held = dm_fuzz::alloc_meter::peak_since(heap);
+            assert!(
+                held <= dm_fuzz::MAX_INPUT_BYTES,
+                "{}: {} MiB of heap held at once",
+                path.display(),
+                held >> 20
             );
             checked += 1;
         }

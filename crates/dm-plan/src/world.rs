@@ -77,10 +77,6 @@ impl PlanningModel {
         Ok(self)
     }
 
-    pub fn has_residual(&self) -> bool {
-        self.residual.is_some()
-    }
-
     /// First-frame particles of the planning world (surface first).
     pub fn particles(&self) -> &[[f64; 3]] {
         &self.coarse.body.particles

@@ -215,8 +215,12 @@ impl<T: Real> PlanningWorld<T> {
         let substeps = self.world.step_frame_taped(from, to, grasp, window)?;
         let correction = match &self.residual {
             Some(network) => {
+                // The inputs once, for the correction and for its adjoint.
                 let inputs = frame_inputs(&self.world, &self.starts, t);
-                let (dv, tape) = apply_residual(&mut self.world, network, &self.starts, t)?;
+                let dv = network
+                    .predict(&inputs)
+                    .map_err(dm_model::ModelError::from)?;
+                let tape = self.world.apply_velocity_correction(&dv)?;
                 Some((inputs, dv, tape))
             }
             None => None,

@@ -11,7 +11,10 @@
 #    the GPU (times and largest position difference), and the playground's
 #    frame with all the model's particles at its substeps on both;
 # 4. with FIT_SCENE set (the demo's scene): the demo's fit on the GPU and
-#    on the CPU, their times and results.
+#    on the CPU, their times and results; then, with the scene's truth file
+#    beside it (FIT_SCENE.truth.json), a 120-frame plan (dm-plan's
+#    defaults, goal place, carried out in the truth world) with the
+#    GPU-fitted model on both devices.
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -62,5 +65,12 @@ if [ -n "${FIT_SCENE:-}" ]; then
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$device" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$device"
         python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit $device: %.1f s, E %.4g Pa, final loss %.5g' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final']))" "$OUT_DIR/fit-$device/fit_report.json"
     done
+    if [ -e "$FIT_SCENE.truth.json" ]; then
+        for device in cuda cpu; do
+            run "$BIN/dm-plan" "$OUT_DIR/fit-cuda" --bundle "$FIT_SCENE" --goal place \
+                --plant "$FIT_SCENE.truth.json" --no-video --device "$device" --out "$OUT_DIR/plan-$device"
+            python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-plan $device: %.1f s, %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm' % (r['seconds'], r['rollouts'], 1e3*r['start']['final_chamfer_m'], 1e3*r['planned']['final_chamfer_m'], 1e3*r['executed']['final_chamfer_m']))" "$OUT_DIR/plan-$device/plan.json"
+        done
+    fi
 fi
 exit $status

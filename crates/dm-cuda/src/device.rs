@@ -13,7 +13,8 @@ pub struct CudaDevice {
     context: Arc<CudaContext>,
     stream: Arc<CudaStream>,
     arch: String,
-    modules: Mutex<HashMap<Precision, Arc<CudaModule>>>,
+    /// Shared by the handles of every stream of this GPU.
+    modules: Arc<Mutex<HashMap<Precision, Arc<CudaModule>>>>,
 }
 
 /// The entry points of one compiled module.
@@ -54,7 +55,19 @@ impl CudaDevice {
             context,
             stream,
             arch: format!("compute_{major}{minor}"),
-            modules: Mutex::new(HashMap::new()),
+            modules: Arc::new(Mutex::new(HashMap::new())),
+        }))
+    }
+
+    /// The same GPU and compiled kernels with a stream of its own: worlds
+    /// on different streams run concurrently (many small worlds stepped
+    /// from several host threads fill the GPU where one cannot).
+    pub fn with_own_stream(&self) -> Result<Arc<Self>, CudaError> {
+        Ok(Arc::new(Self {
+            context: self.context.clone(),
+            stream: self.context.new_stream()?,
+            arch: self.arch.clone(),
+            modules: self.modules.clone(),
         }))
     }
 

@@ -26,6 +26,17 @@ pub struct DeviceFrameTape<T> {
     pub(crate) frame_dt: f64,
 }
 
+impl<T> DeviceFrameTape<T> {
+    /// Substeps recorded (the differentiated window).
+    pub fn len(&self) -> usize {
+        self.states.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.states.is_empty()
+    }
+}
+
 impl<T: DeviceReal> CudaWorld<T> {
     /// Adjoint of the frame recorded in `tape` (as
     /// [`dm_mpm::World::backward_frame`]), given the adjoint of the state

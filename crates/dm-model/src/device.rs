@@ -2,6 +2,7 @@
 //! an NVIDIA GPU through `dm-cuda`.
 
 use crate::ModelError;
+pub use dm_cuda::DeviceReal;
 use dm_cuda::{CudaDevice, CudaWorld, DeviceFrameTape};
 use dm_mpm::actuators::Actuators;
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -38,29 +39,57 @@ fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
 
 /// What a frame's backward pass needs, on the world's device.
 #[derive(Debug)]
-pub enum DeviceTape {
-    Cpu(FrameTape<f32>),
-    Cuda(DeviceFrameTape<f32>),
+pub enum DeviceTape<T: DeviceReal = f32> {
+    Cpu(FrameTape<T>),
+    Cuda(DeviceFrameTape<T>),
+}
+
+impl<T: DeviceReal> DeviceTape<T> {
+    /// Substeps recorded (the differentiated window).
+    pub fn len(&self) -> usize {
+        match self {
+            DeviceTape::Cpu(tape) => tape.len(),
+            DeviceTape::Cuda(tape) => tape.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 /// An MPM world on the CPU or on the GPU, stepped the same way.
 #[derive(Debug)]
-pub enum DeviceWorld {
-    Cpu(Box<World<f32>>),
-    Cuda(Box<CudaWorld<f32>>),
+pub enum DeviceWorld<T: DeviceReal = f32> {
+    Cpu(Box<World<T>>),
+    Cuda(Box<CudaWorld<T>>),
 }
 
-impl DeviceWorld {
+impl DeviceWorld<f32> {
     /// `model`'s world at its first frame on `device`.
     pub fn of_model(model: &crate::WorldModel, device: Device) -> Result<Self, ModelError> {
         Self::new(model.world()?, device)
     }
+}
 
+impl<T: DeviceReal> DeviceWorld<T> {
     /// `world` moved to `device`.
-    pub fn new(world: World<f32>, device: Device) -> Result<Self, ModelError> {
+    pub fn new(world: World<T>, device: Device) -> Result<Self, ModelError> {
         Ok(match device {
             Device::Cpu => DeviceWorld::Cpu(Box::new(world)),
             Device::Cuda => DeviceWorld::Cuda(Box::new(CudaWorld::new(world, shared_gpu()?)?)),
+        })
+    }
+
+    /// [`DeviceWorld::new`], on the GPU with a stream of its own, so that
+    /// worlds stepped from several threads run there at once.
+    pub fn new_on_own_stream(world: World<T>, device: Device) -> Result<Self, ModelError> {
+        Ok(match device {
+            Device::Cpu => DeviceWorld::Cpu(Box::new(world)),
+            Device::Cuda => DeviceWorld::Cuda(Box::new(CudaWorld::new(
+                world,
+                shared_gpu()?.with_own_stream()?,
+            )?)),
         })
     }
 
@@ -91,7 +120,7 @@ impl DeviceWorld {
         to: &[[f64; 3]],
         active: &[bool],
         window: usize,
-    ) -> Result<DeviceTape, ModelError> {
+    ) -> Result<DeviceTape<T>, ModelError> {
         match self {
             DeviceWorld::Cpu(world) => Ok(DeviceTape::Cpu(
                 world.step_frame_taped(from, to, active, window)?,
@@ -105,9 +134,9 @@ impl DeviceWorld {
     /// As [`World::backward_frame`]; `tape` must come from this world.
     pub fn backward_frame(
         &mut self,
-        tape: &DeviceTape,
-        grad_after: &ParticleGrads<f32>,
-    ) -> Result<FrameGrads<f32>, ModelError> {
+        tape: &DeviceTape<T>,
+        grad_after: &ParticleGrads<T>,
+    ) -> Result<FrameGrads<T>, ModelError> {
         match (self, tape) {
             (DeviceWorld::Cpu(world), DeviceTape::Cpu(tape)) => {
                 Ok(world.backward_frame(tape, grad_after)?)
@@ -123,7 +152,7 @@ impl DeviceWorld {
     }
 
     /// Replaces the particle state (caller's order).
-    pub fn set_state(&mut self, state: &Particles<f32>) -> Result<(), ModelError> {
+    pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), ModelError> {
         match self {
             DeviceWorld::Cpu(world) => Ok(world.set_state(state)?),
             DeviceWorld::Cuda(world) => Ok(world.set_state(state)?),
@@ -131,7 +160,7 @@ impl DeviceWorld {
     }
 
     /// The world with its particle state up to date (fetched from the GPU).
-    pub fn host(&mut self) -> Result<&World<f32>, ModelError> {
+    pub fn host(&mut self) -> Result<&World<T>, ModelError> {
         match self {
             DeviceWorld::Cpu(world) => Ok(world),
             DeviceWorld::Cuda(world) => Ok(world.host()?),
@@ -139,7 +168,7 @@ impl DeviceWorld {
     }
 
     /// Changes the world on the host and, on the GPU, sends it back.
-    pub fn edit<R>(&mut self, change: impl FnOnce(&mut World<f32>) -> R) -> Result<R, ModelError> {
+    pub fn edit<R>(&mut self, change: impl FnOnce(&mut World<T>) -> R) -> Result<R, ModelError> {
         match self {
             DeviceWorld::Cpu(world) => Ok(change(world)),
             DeviceWorld::Cuda(world) => Ok(world.edit(change)?),
@@ -155,7 +184,7 @@ impl DeviceWorld {
     }
 
     /// The particle state in the caller's order.
-    pub fn state(&mut self) -> Result<Particles<f32>, ModelError> {
+    pub fn state(&mut self) -> Result<Particles<T>, ModelError> {
         match self {
             DeviceWorld::Cpu(world) => Ok(world.state()),
             DeviceWorld::Cuda(world) => Ok(world.state()?),
@@ -171,7 +200,7 @@ impl DeviceWorld {
     }
 
     /// The actuator couplings (kept on the host; no transfer).
-    pub fn actuators(&self) -> &Actuators<f32> {
+    pub fn actuators(&self) -> &Actuators<T> {
         match self {
             DeviceWorld::Cpu(world) => world.actuators(),
             DeviceWorld::Cuda(world) => world.actuators(),

@@ -7,6 +7,7 @@
 //! each frame's correction is differentiated too, back to the frame starts
 //! its network saw. Adam on the knots.
 
+use dm_model::device::DeviceReal;
 use dm_mpm::Real;
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
@@ -41,7 +42,7 @@ impl Default for GradientOptions {
 
 /// The plan's cost from `start` (the planning model's first frame when
 /// `None`) and its gradient with respect to the knots.
-pub fn cost_and_gradient<T: Real>(
+pub fn cost_and_gradient<T: DeviceReal>(
     model: &PlanningModel,
     start: Option<&Particles<T>>,
     plan: &ActionPlan,
@@ -60,7 +61,7 @@ pub fn cost_and_gradient<T: Real>(
         let grasp = vec![t == 0; hands];
         tapes.push(world.step_frame_taped(&path[t], &path[t + 1], &grasp, window)?);
     }
-    let (terminal, position_grad) = cost.value_and_gradient(&world.positions());
+    let (terminal, position_grad) = cost.value_and_gradient(&world.positions()?);
     let (penalty, penalty_grad) = plan_penalty(plan, model.frame_dt(), weights);
     let mut carried = ParticleGrads::<T>::zeros(position_grad.len());
     for (c, g) in carried.x.iter_mut().zip(&position_grad) {

@@ -6,6 +6,7 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::PlanError;
@@ -47,8 +48,10 @@ pub struct SearchResult {
 
 /// Minimises `cost` from `start`. `project` keeps a sample feasible (e.g.
 /// inside the workspace); `progress` is called with (iteration, best cost).
+/// An iteration's samples are drawn in order, then costed in parallel:
+/// the result does not depend on the thread count.
 pub fn mppi(
-    cost: &mut dyn FnMut(&[f64]) -> Result<f64, PlanError>,
+    cost: &(dyn Fn(&[f64]) -> Result<f64, PlanError> + Sync),
     start: &[f64],
     project: &dyn Fn(&mut Vec<f64>),
     options: &MppiOptions,
@@ -67,7 +70,6 @@ pub fn mppi(
     let mut history = Vec::with_capacity(options.iterations);
     for iteration in 0..options.iterations {
         let mut samples = Vec::with_capacity(options.samples);
-        let mut costs = Vec::with_capacity(options.samples);
         for k in 0..options.samples {
             let mut sample = mean.clone();
             // The first sample is the mean itself, so the update never
@@ -78,14 +80,18 @@ pub fn mppi(
                 }
             }
             project(&mut sample);
-            let c = cost(&sample)?;
-            rollouts += 1;
+            samples.push(sample);
+        }
+        let costs = samples
+            .par_iter()
+            .map(|sample| cost(sample))
+            .collect::<Result<Vec<f64>, PlanError>>()?;
+        rollouts += samples.len();
+        for (sample, &c) in samples.iter().zip(&costs) {
             if c < best_cost {
                 best_cost = c;
                 best = sample.clone();
             }
-            samples.push(sample);
-            costs.push(c);
         }
         let lowest = costs.iter().copied().fold(f64::INFINITY, f64::min);
         if !lowest.is_finite() {
@@ -130,7 +136,7 @@ mod tests {
     fn mppi_finds_the_minimum_of_a_bowl_and_is_seeded() {
         let target = [0.05, -0.02, 0.03, 0.0];
         let run = |seed| {
-            let mut cost = |x: &[f64]| -> Result<f64, PlanError> {
+            let cost = |x: &[f64]| -> Result<f64, PlanError> {
                 Ok(x.iter().zip(&target).map(|(a, b)| (a - b).powi(2)).sum())
             };
             let options = MppiOptions {
@@ -138,7 +144,7 @@ mod tests {
                 iterations: 30,
                 ..MppiOptions::default()
             };
-            mppi(&mut cost, &[0.0; 4], &|_| {}, &options, &mut |_, _| {}).expect("search")
+            mppi(&cost, &[0.0; 4], &|_| {}, &options, &mut |_, _| {}).expect("search")
         };
         let result = run(1);
         assert!(result.best_cost < 1e-4, "best cost {}", result.best_cost);
@@ -146,5 +152,30 @@ mod tests {
         assert_eq!(result.rollouts, 1 + 30 * 20);
         assert_eq!(run(1), result);
         assert_ne!(run(2).best, result.best);
+    }
+
+    #[test]
+    fn mppi_does_not_depend_on_the_thread_count() {
+        // A cost with many equal values: ties must resolve the same way
+        // whichever sample finishes first.
+        let cost = |x: &[f64]| -> Result<f64, PlanError> {
+            Ok((x.iter().map(|v| v.abs()).sum::<f64>() * 50.0).round())
+        };
+        let options = MppiOptions {
+            seed: 3,
+            iterations: 8,
+            ..MppiOptions::default()
+        };
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool")
+                .install(|| mppi(&cost, &[0.1; 6], &|_| {}, &options, &mut |_, _| {}))
+                .expect("search")
+        };
+        let one = on(1);
+        assert_eq!(on(2), one);
+        assert_eq!(on(5), one);
     }
 }

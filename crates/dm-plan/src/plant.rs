@@ -7,6 +7,7 @@
 //! also replay the clip's own hands, to start a plan where the clip
 //! leaves the object.
 
+use dm_model::device::Device;
 use dm_model::{Simulation, WorldModel};
 use dm_mpm::World;
 use dm_mpm::state::Particles;
@@ -38,9 +39,13 @@ pub enum Plant {
 }
 
 impl Plant {
-    pub fn model(model: &WorldModel, clip_hands: Vec<Vec<[f64; 3]>>) -> Result<Self, PlanError> {
+    pub fn model(
+        model: &WorldModel,
+        clip_hands: Vec<Vec<[f64; 3]>>,
+        device: Device,
+    ) -> Result<Self, PlanError> {
         Ok(Plant::Model {
-            simulation: Box::new(model.simulation()?),
+            simulation: Box::new(model.simulation_on(device)?),
             surface_count: model.surface_count,
             clip_hands,
         })

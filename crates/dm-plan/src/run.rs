@@ -249,13 +249,13 @@ fn bounds(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
 /// planning world (`tracker`) accounts for it.
 fn observe(
     plant: &mut Plant,
-    tracker: &PlanningWorld<f32>,
+    tracker: &mut PlanningWorld<f32>,
     observed_of: &[usize],
     noise: &Normal<f64>,
     rng: &mut ChaCha8Rng,
 ) -> Result<Particles<f32>, PlanError> {
     let truth = plant.state()?;
-    let mut state = tracker.state();
+    let mut state = tracker.state()?;
     for (p, &q) in observed_of.iter().enumerate() {
         for a in 0..3 {
             state.x[p][a] = truth.x[q][a] + noise.sample(rng) as f32;
@@ -299,7 +299,7 @@ fn start_from_clip(
         progress("start", t + 1, total);
     }
     plant.release()?;
-    tracker.release_grasps();
+    tracker.release_grasps()?;
     for s in 0..options.settle_frames {
         plant.step_free()?;
         tracker.step_frame_free()?;
@@ -357,7 +357,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     } else {
         PlayOptions::interactive()
     };
-    let mut planning = PlanningModel::new(&model, &play)?;
+    let mut planning = PlanningModel::new(&model, &play)?.on_device(options.device);
     if options.residual {
         planning = planning.with_residual(&model, dm_residual::Precision::F32)?;
     }
@@ -388,7 +388,11 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             )
         }
         None => (
-            Plant::model(&model.with_domain_containing(&reach), clip_hands.clone())?,
+            Plant::model(
+                &model.with_domain_containing(&reach),
+                clip_hands.clone(),
+                options.device,
+            )?,
             "model".to_string(),
         ),
     };
@@ -544,7 +548,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         if options.replan_every > 0 && t < options.horizon {
             // Observed: the plant's positions with noise, its velocities;
             // the deformation as the model predicts it.
-            let state = observe(&mut plant, &tracker, &observed_of, &noise, &mut rng)?;
+            let state = observe(&mut plant, &mut tracker, &observed_of, &noise, &mut rng)?;
             let rest = shifted(&plan, t - offset);
             plan = search.search(
                 &rest,

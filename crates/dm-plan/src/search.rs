@@ -26,7 +26,7 @@ pub(crate) struct Search<'a> {
 impl Search<'_> {
     /// The cost of a plan rolled out from `start` (the first frame when None).
     fn evaluate(
-        &mut self,
+        &self,
         plan: &ActionPlan,
         start: Option<&Particles<f32>>,
     ) -> Result<f64, PlanError> {
@@ -34,7 +34,6 @@ impl Search<'_> {
         if let Some(state) = start {
             world.set_state(state)?;
         }
-        self.rollouts += 1;
         match rollout(&mut world, plan, true) {
             Ok(frames) => {
                 let last = frames.last().map(Vec::as_slice).unwrap_or(&[]);
@@ -80,12 +79,13 @@ impl Search<'_> {
             };
             let template = best.clone();
             let result = mppi(
-                &mut |params| self.evaluate(&template.with_params(params), start),
+                &|params| self.evaluate(&template.with_params(params), start),
                 &best.params(),
                 &project,
                 &mppi_options,
                 &mut |i, _| progress("MPPI", i, iterations),
             )?;
+            self.rollouts += result.rollouts;
             self.history.mppi.extend(&result.history);
             best = best.with_params(&result.best);
         }

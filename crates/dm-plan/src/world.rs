@@ -10,6 +10,7 @@
 use std::sync::Arc;
 
 use dm_model::WorldModel;
+use dm_model::device::{Device, DeviceReal, DeviceTape, DeviceWorld};
 use dm_model::residual::{
     FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
 };
@@ -18,8 +19,8 @@ use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
-use dm_mpm::tape::{FrameGrads, FrameTape};
-use dm_mpm::{ActuatorConfig, ActuatorMode, Real, World};
+use dm_mpm::tape::FrameGrads;
+use dm_mpm::{ActuatorConfig, ActuatorMode, World};
 use dm_play::PlayOptions;
 use dm_play::session::CoarseModel;
 use dm_residual::features::ParticleState;
@@ -35,6 +36,7 @@ pub struct PlanningModel {
     actuator: ActuatorConfig,
     experts: dm_model::ExpertChoice,
     residual: Option<Arc<Residual>>,
+    device: Device,
 }
 
 impl PlanningModel {
@@ -56,7 +58,18 @@ impl PlanningModel {
             actuator,
             experts: model.options.experts,
             residual: None,
+            device: Device::Cpu,
         })
+    }
+
+    /// The same world stepped on `device`.
+    pub fn on_device(mut self, device: Device) -> Self {
+        self.device = device;
+        self
+    }
+
+    pub fn device(&self) -> Device {
+        self.device
     }
 
     /// The same world with `model`'s residual network correcting every
@@ -95,8 +108,9 @@ impl PlanningModel {
         self.actuator.grasp_radius
     }
 
-    /// A fresh world at the first frame.
-    pub fn world<T: Real>(&self) -> Result<PlanningWorld<T>, PlanError> {
+    /// A fresh world at the first frame, on the planning device (on the
+    /// GPU with a stream of its own, so that rollouts run concurrently).
+    pub fn world<T: DeviceReal>(&self) -> Result<PlanningWorld<T>, PlanError> {
         let mut material = self.coarse.material::<T>(1.0, None);
         self.experts.apply_to(&mut material);
         let world = World::new(
@@ -107,7 +121,7 @@ impl PlanningModel {
             self.actuator,
         )?;
         Ok(PlanningWorld {
-            world,
+            world: DeviceWorld::new_on_own_stream(world, self.device)?,
             residual: self.residual.clone(),
             starts: Vec::new(),
         })
@@ -126,8 +140,8 @@ impl PlanningModel {
 /// The MPM world of a plan and, with the residual, the frame starts its
 /// network sees as history (since the state was last set).
 #[derive(Debug)]
-pub struct PlanningWorld<T: Real> {
-    world: World<T>,
+pub struct PlanningWorld<T: DeviceReal> {
+    world: DeviceWorld<T>,
     residual: Option<Arc<Residual>>,
     starts: Vec<FrameStart>,
 }
@@ -135,10 +149,10 @@ pub struct PlanningWorld<T: Real> {
 /// What the adjoint of one frame needs: the substeps' tape and, with the
 /// residual, the correction's inputs, Δv and tape.
 #[derive(Debug)]
-pub struct FrameRecord<T: Real> {
+pub struct FrameRecord<T: DeviceReal> {
     /// The frame's index since the state was last set.
     frame: usize,
-    substeps: FrameTape<T>,
+    substeps: DeviceTape<T>,
     correction: Option<(FrameInputs, Vec<[f64; 3]>, CorrectionTape)>,
 }
 
@@ -151,14 +165,14 @@ pub struct FrameAdjoint<T> {
     pub history: Vec<(usize, ParticleState)>,
 }
 
-impl<T: Real> FrameRecord<T> {
+impl<T: DeviceReal> FrameRecord<T> {
     /// Substeps differentiated exactly.
     pub fn taped_substeps(&self) -> usize {
         self.substeps.len()
     }
 }
 
-impl<T: Real> PlanningWorld<T> {
+impl<T: DeviceReal> PlanningWorld<T> {
     /// Starts from `state`; the residual's history starts again there.
     pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), PlanError> {
         self.world.set_state(state)?;
@@ -166,20 +180,20 @@ impl<T: Real> PlanningWorld<T> {
         Ok(())
     }
 
-    pub fn state(&self) -> Particles<T> {
-        self.world.state()
+    pub fn state(&mut self) -> Result<Particles<T>, PlanError> {
+        Ok(self.world.state()?)
     }
 
-    pub fn positions(&self) -> Vec<[f64; 3]> {
-        self.world.positions()
+    pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
+        Ok(self.world.positions()?)
     }
 
     pub fn config(&self) -> &dm_mpm::PhysicsConfig {
         self.world.config()
     }
 
-    pub fn release_grasps(&mut self) {
-        self.world.release_grasps();
+    pub fn release_grasps(&mut self) -> Result<(), PlanError> {
+        Ok(self.world.edit(World::release_grasps)?)
     }
 
     /// One frame with the hands moving from `from` to `to` (grasping where
@@ -190,9 +204,16 @@ impl<T: Real> PlanningWorld<T> {
         to: &[[f64; 3]],
         grasp: &[bool],
     ) -> Result<(), PlanError> {
-        self.starts.push(frame_start(&self.world));
+        let Some(network) = &self.residual else {
+            self.world.step_frame(from, to, grasp)?;
+            return Ok(());
+        };
+        self.starts.push(frame_start(self.world.host()?));
+        let t = self.starts.len() - 1;
         self.world.step_frame(from, to, grasp)?;
-        self.correct()?;
+        let starts = &self.starts;
+        self.world
+            .edit(|world| apply_residual(world, network, starts, t))??;
         Ok(())
     }
 
@@ -210,25 +231,28 @@ impl<T: Real> PlanningWorld<T> {
         grasp: &[bool],
         window: usize,
     ) -> Result<FrameRecord<T>, PlanError> {
-        self.starts.push(frame_start(&self.world));
+        let Some(network) = &self.residual else {
+            return Ok(FrameRecord {
+                frame: self.starts.len(),
+                substeps: self.world.step_frame_taped(from, to, grasp, window)?,
+                correction: None,
+            });
+        };
+        self.starts.push(frame_start(self.world.host()?));
         let t = self.starts.len() - 1;
         let substeps = self.world.step_frame_taped(from, to, grasp, window)?;
-        let correction = match &self.residual {
-            Some(network) => {
-                // The inputs once, for the correction and for its adjoint.
-                let inputs = frame_inputs(&self.world, &self.starts, t);
-                let dv = network
-                    .predict(&inputs)
-                    .map_err(dm_model::ModelError::from)?;
-                let tape = self.world.apply_velocity_correction(&dv)?;
-                Some((inputs, dv, tape))
-            }
-            None => None,
-        };
+        // The inputs once, for the correction and for its adjoint.
+        let inputs = frame_inputs(self.world.host()?, &self.starts, t);
+        let dv = network
+            .predict(&inputs)
+            .map_err(dm_model::ModelError::from)?;
+        let tape = self
+            .world
+            .edit(|world| world.apply_velocity_correction(&dv))??;
         Ok(FrameRecord {
             frame: t,
             substeps,
-            correction,
+            correction: Some((inputs, dv, tape)),
         })
     }
 
@@ -263,31 +287,23 @@ impl<T: Real> PlanningWorld<T> {
             .collect();
         Ok(FrameAdjoint { frame, history })
     }
-
-    fn correct(&mut self) -> Result<(), PlanError> {
-        if let Some(network) = &self.residual {
-            let t = self.starts.len() - 1;
-            apply_residual(&mut self.world, network, &self.starts, t)?;
-        }
-        Ok(())
-    }
 }
 
 /// Steps `world` through `plan` from its frame 0 (where the hands grasp
 /// when `grasp_first`) to its horizon; positions of every frame, frame 0
 /// first.
-pub fn rollout<T: Real>(
+pub fn rollout<T: DeviceReal>(
     world: &mut PlanningWorld<T>,
     plan: &ActionPlan,
     grasp_first: bool,
 ) -> Result<Vec<Vec<[f64; 3]>>, PlanError> {
     let path = plan.path();
     let hands = plan.hands.len();
-    let mut frames = vec![world.positions()];
+    let mut frames = vec![world.positions()?];
     for t in 0..plan.horizon {
         let grasp = vec![grasp_first && t == 0; hands];
         world.step_frame(&path[t], &path[t + 1], &grasp)?;
-        frames.push(world.positions());
+        frames.push(world.positions()?);
     }
     Ok(frames)
 }

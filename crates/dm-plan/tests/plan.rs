@@ -202,6 +202,7 @@ fn small_plan(
         camera: 0,
         no_video: true,
         seed: 1,
+        device: dm_model::device::Device::Cpu,
     }
 }
 

@@ -1,16 +1,17 @@
 //! Where a plan is carried out: the fitted model itself (its own
 //! particles, grid, substeps and residual), or a world the model did not
 //! fit — dm-synth's truth world of the scene, hidden effects included,
-//! rebuilt from its truth file. Each planned hand is one anchor in the
-//! model; in the truth world it is a cluster of anchors (a centre and a
-//! ring, as dm-synth's scripted hands hold the object). Either plant can
-//! also replay the clip's own hands, to start a plan where the clip
-//! leaves the object.
+//! rebuilt from its truth file, or, for a foreign-physics scene, its
+//! MuJoCo simulation. Each planned hand is one anchor in the model; in the
+//! truth world it is a cluster of anchors (a centre and a ring, as
+//! dm-synth's scripted hands hold the object); in MuJoCo one mocap hand
+//! gripping the flex vertices near it. Every plant can also replay the
+//! clip's own hands, to start a plan where the clip leaves the object.
 
 use dm_model::device::Device;
 use dm_model::{Simulation, WorldModel};
 use dm_mpm::World;
-use dm_mpm::state::Particles;
+use dm_synth::foreign_plant::{MujocoPlant, PlantState};
 
 use crate::PlanError;
 
@@ -36,6 +37,13 @@ pub enum Plant {
         surface: Vec<bool>,
         clip_hands: Vec<Vec<[f64; 3]>>,
     },
+    /// A foreign-physics scene's MuJoCo simulation (each planned hand one
+    /// mocap hand gripping the flex vertices near it) and the clip's hand
+    /// anchors per frame (the simulation replays its own scripted hands).
+    Foreign {
+        plant: Box<MujocoPlant>,
+        clip_hands: Vec<Vec<[f64; 3]>>,
+    },
 }
 
 impl Plant {
@@ -59,19 +67,32 @@ impl Plant {
         }
     }
 
-    fn world(&mut self) -> Result<&World<f32>, PlanError> {
-        match self {
-            Plant::Model { simulation, .. } => Ok(simulation.world()?),
-            Plant::Truth { world, .. } => Ok(world),
+    pub fn foreign(plant: MujocoPlant, clip_hands: Vec<Vec<[f64; 3]>>) -> Self {
+        Plant::Foreign {
+            plant: Box::new(plant),
+            clip_hands,
         }
     }
 
     pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
-        Ok(self.world()?.positions())
+        Ok(self.state()?.x.iter().map(|p| p.map(f64::from)).collect())
     }
 
-    pub fn state(&mut self) -> Result<Particles<f32>, PlanError> {
-        Ok(self.world()?.state())
+    /// Positions and velocities of the plant's particles.
+    pub fn state(&mut self) -> Result<PlantState, PlanError> {
+        let of_world = |world: &World<f32>| {
+            let state = world.state();
+            let point = |p: &dm_mpm::real::Vec3<f32>| [p[0], p[1], p[2]];
+            PlantState {
+                x: state.x.iter().map(point).collect(),
+                v: state.v.iter().map(point).collect(),
+            }
+        };
+        Ok(match self {
+            Plant::Model { simulation, .. } => of_world(simulation.world()?),
+            Plant::Truth { world, .. } => of_world(world),
+            Plant::Foreign { plant, .. } => plant.state()?,
+        })
     }
 
     /// The surface particles, which a goal is compared with.
@@ -85,13 +106,19 @@ impl Plant {
                 .filter(|(_, s)| **s)
                 .map(|(p, _)| *p)
                 .collect(),
+            Plant::Foreign { plant, .. } => positions
+                .iter()
+                .zip(&plant.surface)
+                .filter(|(_, s)| **s)
+                .map(|(p, _)| *p)
+                .collect(),
         })
     }
 
     /// The anchors that stand for the planned hands at `hands`.
     pub fn anchors(&self, hands: &[[f64; 3]]) -> Vec<[f64; 3]> {
         match self {
-            Plant::Model { .. } => hands.to_vec(),
+            Plant::Model { .. } | Plant::Foreign { .. } => hands.to_vec(),
             Plant::Truth { .. } => hands
                 .iter()
                 .flat_map(|h| {
@@ -112,7 +139,9 @@ impl Plant {
     /// Frames of the clip whose hands the plant can replay.
     pub fn clip_frames(&self) -> usize {
         match self {
-            Plant::Model { clip_hands, .. } | Plant::Truth { clip_hands, .. } => clip_hands.len(),
+            Plant::Model { clip_hands, .. }
+            | Plant::Truth { clip_hands, .. }
+            | Plant::Foreign { clip_hands, .. } => clip_hands.len(),
         }
     }
 
@@ -121,6 +150,16 @@ impl Plant {
     pub fn replay(&mut self, t: usize) -> Result<(), PlanError> {
         let hands = match self {
             Plant::Model { clip_hands, .. } | Plant::Truth { clip_hands, .. } => clip_hands,
+            Plant::Foreign { plant, clip_hands } => {
+                if t + 1 >= clip_hands.len() {
+                    return Err(crate::invalid(
+                        "--start-frame",
+                        format!("the clip has no frame {}", t + 1),
+                    ));
+                }
+                plant.replay(t)?;
+                return Ok(());
+            }
         };
         let (Some(from), Some(to)) = (hands.get(t).cloned(), hands.get(t + 1).cloned()) else {
             return Err(crate::invalid(
@@ -137,6 +176,7 @@ impl Plant {
         match self {
             Plant::Model { simulation, .. } => simulation.release_grasps()?,
             Plant::Truth { world, .. } => world.release_grasps(),
+            Plant::Foreign { plant, .. } => plant.release()?,
         }
         Ok(())
     }
@@ -168,6 +208,8 @@ impl Plant {
         match self {
             Plant::Model { simulation, .. } => simulation.step(from, to, grasp)?,
             Plant::Truth { world, .. } => world.step_frame(from, to, grasp)?,
+            Plant::Foreign { plant, .. } if from.is_empty() => plant.step_free()?,
+            Plant::Foreign { plant, .. } => plant.step(from, to, grasp)?,
         }
         Ok(())
     }

@@ -381,11 +381,15 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     let (mut plant, plant_name) = match &options.plant {
         Some(path) => {
             let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
-            let (world, surface) = dm_synth::plant_world(&truth, &reach)?;
-            (
-                Plant::truth(world, surface, dm_synth::clip_hand_anchors(&truth)),
-                format!("truth:{}", path.display()),
-            )
+            let clip = dm_synth::clip_hand_anchors(&truth);
+            let plant = if truth.engine.is_some() {
+                let foreign = dm_synth::foreign_plant::MujocoPlant::start(&truth, options.hands)?;
+                Plant::foreign(foreign, clip)
+            } else {
+                let (world, surface) = dm_synth::plant_world(&truth, &reach)?;
+                Plant::truth(world, surface, clip)
+            };
+            (plant, format!("truth:{}", path.display()))
         }
         None => (
             Plant::model(

@@ -2,6 +2,7 @@
 """Simulates one foreign-physics scene with MuJoCo.
 
 Usage: mujoco_scene.py DIR
+       mujoco_scene.py DIR --serve HANDS HOLD_RADIUS_M
 
 Reads DIR/request.json (written by dm-synth --engine mujoco: the object's
 flex mesh, material, hands, hidden effect and the truth particles' rest
@@ -15,6 +16,25 @@ through equality constraints, and writes
 
 Progress goes to stderr as "frame K/T" lines. Exit 1 with a message on
 stderr when the simulation diverges.
+
+With --serve the scene is a plant stepped on request: after the settling
+frames (no grip held), each line on stdin is a JSON command and each gets
+one JSON line on stdout, {"ok": true} or {"ok": false, "error": ...}:
+
+  {"op": "replay", "frame": t}   the scripted hands' frame t -> t + 1; they
+                                 grip their vertices on the first replay
+  {"op": "step", "from": [[x, y, z], ...], "to": [...], "grasp": [b, ...]}
+                                 one frame of HANDS planned hands moving
+                                 linearly; a hand marked in grasp lets go and
+                                 grips every vertex within HOLD_RADIUS_M (the
+                                 scripted hands let go at the first step)
+  {"op": "free"}                 one frame with the hands as they are
+  {"op": "release"}              every grip let go
+  {"op": "state"}                the answer line has "particles": N and is
+                                 followed by N x 3 float32 positions, then
+                                 N x 3 float32 velocities (over the last
+                                 frame), little-endian
+  {"op": "quit"}
 """
 
 import json
@@ -31,8 +51,10 @@ except ImportError:
     sys.exit(3)
 
 
-def flex_xml(req):
-    """The MJCF model: floor, mocap hands, the flex and the grips."""
+def flex_xml(req, planned_hands=0):
+    """The MJCF model: floor, mocap hands, the flex and the grips. With
+    planned hands (a plant), every grip starts let go and each planned hand
+    has a grip on every vertex, let go until it grasps."""
     dim = req["dim"]
     verts = np.asarray(req["vertices"], dtype=np.float64)
     elems = np.asarray(req["elements"], dtype=np.int64)
@@ -57,12 +79,22 @@ def flex_xml(req):
         f'<body name="hand{k}" mocap="true" pos="{h["grasp"][0]:.6f} {h["grasp"][1]:.6f} {h["grasp"][2]:.6f}"/>'
         for k, h in enumerate(req["hands"])
     )
+    active = ' active="false"' if planned_hands else ""
     grips = []
     for k, h in enumerate(req["hands"]):
         for v in h["held_vertices"]:
             a = verts[v] - np.asarray(h["grasp"])
             grips.append(
-                f'<connect body1="hand{k}" body2="object_{v}" anchor="{a[0]:.6f} {a[1]:.6f} {a[2]:.6f}" solref="0.004 1"/>'
+                f'<connect body1="hand{k}" body2="object_{v}" anchor="{a[0]:.6f} {a[1]:.6f} {a[2]:.6f}" solref="0.004 1"{active}/>'
+            )
+    # Planned hands rest far above until they grasp.
+    hands += "".join(
+        f'\n<body name="plan{k}" mocap="true" pos="0 0 10"/>' for k in range(planned_hands)
+    )
+    for k in range(planned_hands):
+        for v in range(len(verts)):
+            grips.append(
+                f'<connect body1="plan{k}" body2="object_{v}" anchor="0 0 0" solref="0.004 1" active="false"/>'
             )
     return f"""
 <mujoco model="dm-synth foreign scene">
@@ -206,6 +238,8 @@ def hand_pose(pose):
 
 
 def main():
+    if len(sys.argv) == 5 and sys.argv[2] == "--serve":
+        return serve(Path(sys.argv[1]), int(sys.argv[3]), float(sys.argv[4]))
     if len(sys.argv) != 2:
         sys.stderr.write(__doc__)
         return 2
@@ -273,6 +307,164 @@ def main():
         "warnings": int(sum(w.number for w in data.warning)),
     }
     (root / "result.json").write_text(json.dumps(result, indent=1))
+    return 0
+
+
+class Plant:
+    """The scene as a plant: MuJoCo stepped a frame per command."""
+
+    def __init__(self, req, planned_hands, hold_radius):
+        self.model = mujoco.MjModel.from_xml_string(flex_xml(req, planned_hands))
+        apply_mass_and_drag(self.model, req)
+        self.data = mujoco.MjData(self.model)
+        self.req, self.hold_radius = req, hold_radius
+        self.nv = self.model.flex_vertnum[0]
+        verts0 = np.asarray(req["vertices"], dtype=np.float64)
+        cloud = np.asarray(req["cloud_rest"], dtype=np.float64)
+        self.embedding = Embedding(req["dim"], verts0, np.asarray(req["elements"], dtype=np.int64), cloud)
+        self.poses = [np.asarray(h["poses"], dtype=np.float64) for h in req["hands"]]
+        self.substeps = req["substeps_per_frame"]
+        self.frame_dt = 1.0 / req["fps"]
+        self.vertex_body = self.model.flex_vertbodyid[: self.nv]
+        body = lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+        self.scripted_mocap = [self.model.body_mocapid[body(f"hand{k}")] for k in range(len(self.poses))]
+        self.planned_body = [body(f"plan{k}") for k in range(planned_hands)]
+        self.planned_mocap = [self.model.body_mocapid[b] for b in self.planned_body]
+        # Equalities in the model's order: the scripted grips, then each
+        # planned hand's grip on every vertex.
+        self.scripted_grips, start = [], 0
+        for k, h in enumerate(req["hands"]):
+            ids = list(range(start, start + len(h["held_vertices"])))
+            self.scripted_grips.append((body(f"hand{k}"), ids, h["held_vertices"]))
+            start += len(ids)
+        self.planned_start = start
+        self.scripted_held = False
+        self.set_scripted(0, 0.0)
+        mujoco.mj_forward(self.model, self.data)
+        self.current = self.cloud()
+        self.previous = self.current
+        for _ in range(req["settle_frames"]):
+            self.frame(lambda frac: None)
+
+    def set_scripted(self, frame, frac):
+        for k, p in enumerate(self.poses):
+            a = p[min(frame, len(p) - 1)]
+            b = p[min(frame + 1, len(p) - 1)]
+            pos, quat = hand_pose(a + frac * (b - a))
+            self.data.mocap_pos[self.scripted_mocap[k]] = pos
+            self.data.mocap_quat[self.scripted_mocap[k]] = quat
+
+    def cloud(self):
+        return self.embedding.positions(np.array(self.data.flexvert_xpos[: self.nv]))
+
+    def grip(self, hand_body, eq_ids, vertices):
+        """Holds `vertices` where they are now, relative to the hand."""
+        mujoco.mj_kinematics(self.model, self.data)
+        hand_x, hand_r = self.data.xpos[hand_body], self.data.xmat[hand_body].reshape(3, 3)
+        for eq, v in zip(eq_ids, vertices):
+            b = self.vertex_body[v]
+            x = self.data.flexvert_xpos[v]
+            self.model.eq_data[eq, 0:3] = hand_r.T @ (x - hand_x)
+            self.model.eq_data[eq, 3:6] = self.data.xmat[b].reshape(3, 3).T @ (x - self.data.xpos[b])
+            self.data.eq_active[eq] = 1
+
+    def let_go(self, eq_ids):
+        for eq in eq_ids:
+            self.data.eq_active[eq] = 0
+
+    def frame(self, move):
+        """One frame: `move(frac)` places the hands at each substep."""
+        for s in range(self.substeps):
+            move((s + 1) / self.substeps)
+            mujoco.mj_step(self.model, self.data)
+        verts = self.data.flexvert_xpos[: self.nv]
+        if not np.all(np.isfinite(verts)) or np.abs(verts).max() > 100.0:
+            raise RuntimeError("the MuJoCo simulation diverged")
+        self.previous, self.current = self.current, self.cloud()
+
+    def replay(self, t):
+        if not self.scripted_held:
+            self.set_scripted(t, 0.0)
+            for body, ids, vertices in self.scripted_grips:
+                self.grip(body, ids, vertices)
+            self.scripted_held = True
+        self.frame(lambda frac: self.set_scripted(t, frac))
+
+    def release(self):
+        for _, ids, _ in self.scripted_grips:
+            self.let_go(ids)
+        self.let_go(range(self.planned_start, self.planned_start + len(self.planned_body) * self.nv))
+        self.scripted_held = False
+
+    def step(self, start, end, grasp):
+        start, end = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
+        if len(start) != len(self.planned_body) or len(end) != len(start) or len(grasp) != len(start):
+            raise ValueError(f"a step needs {len(self.planned_body)} hands in from, to and grasp")
+        if self.scripted_held:
+            for _, ids, _ in self.scripted_grips:
+                self.let_go(ids)
+            self.scripted_held = False
+        for k, body in enumerate(self.planned_body):
+            self.data.mocap_pos[self.planned_mocap[k]] = start[k]
+            if grasp[k]:
+                ids = range(self.planned_start + k * self.nv, self.planned_start + (k + 1) * self.nv)
+                self.let_go(ids)
+                near = np.linalg.norm(self.data.flexvert_xpos[: self.nv] - start[k], axis=1)
+                held = np.flatnonzero(near < self.hold_radius)
+                if len(held) == 0:
+                    held = [int(near.argmin())]
+                self.grip(body, [self.planned_start + k * self.nv + v for v in held], held)
+
+        def move(frac):
+            for k in range(len(self.planned_body)):
+                self.data.mocap_pos[self.planned_mocap[k]] = start[k] + frac * (end[k] - start[k])
+
+        self.frame(move)
+
+    def state(self):
+        velocity = (self.current - self.previous) / self.frame_dt
+        return self.current.astype("<f4"), velocity.astype("<f4")
+
+
+def serve(root, planned_hands, hold_radius):
+    req = json.loads((root / "request.json").read_text())
+    out = sys.stdout.buffer
+
+    def answer(header, payload=b""):
+        out.write((json.dumps(header) + "\n").encode())
+        out.write(payload)
+        out.flush()
+
+    try:
+        plant = Plant(req, planned_hands, hold_radius)
+    except Exception as e:  # the model did not build or settle
+        sys.stderr.write(f"error: {e}\n")
+        return 1
+    answer({"ok": True, "particles": len(req["cloud_rest"])})
+    for line in sys.stdin:
+        try:
+            command = json.loads(line)
+            op = command["op"]
+            if op == "quit":
+                answer({"ok": True})
+                return 0
+            if op == "state":
+                x, v = plant.state()
+                answer({"ok": True, "particles": len(x)}, x.tobytes() + v.tobytes())
+                continue
+            if op == "replay":
+                plant.replay(int(command["frame"]))
+            elif op == "step":
+                plant.step(command["from"], command["to"], command["grasp"])
+            elif op == "free":
+                plant.frame(lambda frac: None)
+            elif op == "release":
+                plant.release()
+            else:
+                raise ValueError(f"unknown op {op!r}")
+            answer({"ok": True})
+        except Exception as e:
+            answer({"ok": False, "error": f"{type(e).__name__}: {e}"})
     return 0
 
 

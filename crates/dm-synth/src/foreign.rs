@@ -82,7 +82,7 @@ const SUBSTEPS_PER_FRAME: usize = 20;
 const BASE_DAMPING_S: f64 = 0.002;
 /// Vertices within this distance of a hand's grasp point are held: the
 /// anchor ring (12 mm) plus the model's grasp radius (14 mm).
-const HOLD_RADIUS_M: f64 = 0.026;
+pub(crate) const HOLD_RADIUS_M: f64 = 0.026;
 /// Density of the object, kg/m³ (the world model's).
 const DENSITY: f64 = 1000.0;
 
@@ -507,8 +507,69 @@ fn held_vertices(vertices: &[[f64; 3]], grasp: [f64; 3]) -> Vec<usize> {
     }
 }
 
-fn engine_error(problem: impl Into<String>) -> SynthError {
+pub(crate) fn engine_error(problem: impl Into<String>) -> SynthError {
     SynthError::Engine(problem.into())
+}
+
+/// The Python of [`PYTHON_ENV`] (default `python3`), to run in `dir`
+/// (MuJoCo writes its log to the working directory).
+pub(crate) fn python_in(dir: &Path) -> (String, Command) {
+    let mut python = std::env::var(PYTHON_ENV).unwrap_or_else(|_| "python3".into());
+    // Absolute, not canonical: a venv's interpreter is a symlink that must stay one.
+    if python.contains('/')
+        && let Ok(absolute) = std::path::absolute(&python)
+    {
+        python = absolute.to_string_lossy().into_owned();
+    }
+    let mut command = Command::new(&python);
+    command.current_dir(dir);
+    (python, command)
+}
+
+pub(crate) fn cannot_start(python: &str, e: std::io::Error) -> SynthError {
+    engine_error(format!(
+        "cannot start `{python}` ({e}); set {PYTHON_ENV} to a Python with mujoco (make foreign-setup)"
+    ))
+}
+
+/// Writes the simulator script and `config`'s request into `dir`; returns
+/// the script's path and the scene's truth particles.
+pub(crate) fn write_request(
+    config: &SynthConfig,
+    dir: &Path,
+) -> Result<(std::path::PathBuf, ParticleCloud), SynthError> {
+    check_effect(config)?;
+    let hands = plan(
+        config.preset,
+        config.resolved_action(),
+        config.two_hands,
+        config.frames as f64 / FPS,
+    );
+    let cloud = truth_cloud(config);
+    let mesh = FlexMesh::for_preset(config.preset);
+    let request = scene_request(
+        config,
+        &hands,
+        &cloud,
+        &mesh,
+        config.effect,
+        &mut BTreeMap::new(),
+    );
+    write_files(&request, dir)?;
+    Ok((dir.join("mujoco_scene.py"), cloud))
+}
+
+fn write_files(request: &Request, dir: &Path) -> Result<(), SynthError> {
+    let io = |path: &Path, e: std::io::Error| SynthError::Io {
+        path: path.to_owned(),
+        source: e,
+    };
+    let script = dir.join("mujoco_scene.py");
+    std::fs::write(&script, SCRIPT).map_err(|e| io(&script, e))?;
+    let request_path = dir.join("request.json");
+    let text = serde_json::to_string(request)
+        .map_err(|e| engine_error(format!("encoding the request: {e}")))?;
+    std::fs::write(&request_path, text).map_err(|e| io(&request_path, e))
 }
 
 /// Runs the simulator on `request` in a fresh temporary directory and
@@ -522,36 +583,16 @@ fn run_engine(
         .prefix("dm-synth-mujoco-")
         .tempdir()
         .map_err(|e| engine_error(format!("creating a temporary directory: {e}")))?;
-    let io = |path: &Path, e: std::io::Error| SynthError::Io {
-        path: path.to_owned(),
-        source: e,
-    };
+    write_files(request, dir.path())?;
     let script = dir.path().join("mujoco_scene.py");
-    std::fs::write(&script, SCRIPT).map_err(|e| io(&script, e))?;
-    let request_path = dir.path().join("request.json");
-    let text = serde_json::to_string(request)
-        .map_err(|e| engine_error(format!("encoding the request: {e}")))?;
-    std::fs::write(&request_path, text).map_err(|e| io(&request_path, e))?;
-    let mut python = std::env::var(PYTHON_ENV).unwrap_or_else(|_| "python3".into());
-    // MuJoCo writes its log to the working directory: run in the temporary one.
-    // Absolute, not canonical: a venv's interpreter is a symlink that must stay one.
-    if python.contains('/')
-        && let Ok(absolute) = std::path::absolute(&python)
-    {
-        python = absolute.to_string_lossy().into_owned();
-    }
-    let mut child = Command::new(&python)
-        .current_dir(dir.path())
+    let (python, mut command) = python_in(dir.path());
+    let mut child = command
         .arg(&script)
         .arg(dir.path())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| {
-            engine_error(format!(
-                "cannot start `{python}` ({e}); set {PYTHON_ENV} to a Python with mujoco (make foreign-setup)"
-            ))
-        })?;
+        .map_err(|e| cannot_start(&python, e))?;
     let mut messages = Vec::new();
     if let Some(stderr) = child.stderr.take() {
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {

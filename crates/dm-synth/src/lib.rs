@@ -13,6 +13,7 @@ pub mod actions;
 pub mod effects;
 mod field;
 pub mod foreign;
+pub mod foreign_plant;
 pub mod sensor;
 pub mod shapes;
 pub mod truth;

@@ -116,3 +116,107 @@ fn issue39_effects_the_engine_cannot_express_are_refused_before_anything_runs() 
     assert!(err.to_string().contains("--effect"), "{err}");
     assert!(!dir.path().join("plastic").exists());
 }
+
+/// Mean of `points` over the particles marked in `which`.
+fn centre_of(points: &[[f32; 3]], which: &[bool]) -> [f64; 3] {
+    let chosen: Vec<&[f32; 3]> = points
+        .iter()
+        .zip(which)
+        .filter(|(_, w)| **w)
+        .map(|(p, _)| p)
+        .collect();
+    let n = chosen.len().max(1) as f64;
+    std::array::from_fn(|a| chosen.iter().map(|p| f64::from(p[a])).sum::<f64>() / n)
+}
+
+#[test]
+fn a_foreign_scene_is_a_plant_that_replays_its_clip_and_follows_a_planned_hand() {
+    use dm_synth::foreign_plant::MujocoPlant;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config = foreign(Preset::Cloth, 6);
+    let (_, truth) = scene(dir.path(), "cloth", &config);
+
+    // Settled with no grip: at rest, on the floor.
+    let mut plant = MujocoPlant::start(&truth, 1).expect("plant");
+    let rest = plant.state().expect("state");
+    assert_eq!(rest.x.len(), truth.truth_particles);
+    let fastest = rest
+        .v
+        .iter()
+        .map(|v| v.iter().map(|c| c * c).sum::<f32>().sqrt())
+        .fold(0.0, f32::max);
+    assert!(
+        fastest < 0.05,
+        "settled, yet a particle moves at {fastest} m/s"
+    );
+
+    // A planned hand grips a corner and lifts it 6 cm over 8 frames: the
+    // particles near it rise with it, the far side stays down.
+    let everywhere = vec![true; rest.x.len()];
+    let centre = centre_of(&rest.x, &everywhere);
+    let corner = rest
+        .x
+        .iter()
+        .max_by(|a, b| (a[0] + a[1]).total_cmp(&(b[0] + b[1])))
+        .map(|p| p.map(f64::from))
+        .expect("a particle");
+    let near = |p: &[f32; 3], to: [f64; 3], r: f64| {
+        (0..3)
+            .map(|a| (f64::from(p[a]) - to[a]).powi(2))
+            .sum::<f64>()
+            < r * r
+    };
+    let held: Vec<bool> = rest.x.iter().map(|p| near(p, corner, 0.015)).collect();
+    let far_corner: [f64; 3] = std::array::from_fn(|a| 2.0 * centre[a] - corner[a]);
+    let far: Vec<bool> = rest.x.iter().map(|p| near(p, far_corner, 0.03)).collect();
+    assert!(held.iter().any(|h| *h) && far.iter().any(|f| *f));
+    let frames = 8;
+    for t in 0..frames {
+        let at = |s: f64| [corner[0], corner[1], corner[2] + 0.06 * s / frames as f64];
+        plant
+            .step(&[at(t as f64)], &[at(t as f64 + 1.0)], &[t == 0])
+            .expect("step");
+    }
+    let lifted = plant.state().expect("state");
+    let rise = |which: &[bool]| centre_of(&lifted.x, which)[2] - centre_of(&rest.x, which)[2];
+    assert!(
+        (rise(&held) - 0.06).abs() < 0.015,
+        "the gripped corner rose {} m for the hand's 0.06",
+        rise(&held)
+    );
+    assert!(
+        rise(&far).abs() < 0.01,
+        "the far corner rose {} m",
+        rise(&far)
+    );
+
+    // Let go, it falls back; a step with the wrong hand count is refused.
+    plant.release().expect("release");
+    for _ in 0..10 {
+        plant.step_free().expect("free frame");
+    }
+    let dropped = plant.state().expect("state");
+    assert!(centre_of(&dropped.x, &held)[2] < centre_of(&lifted.x, &held)[2] - 0.03);
+    let error = plant
+        .step(&[corner, corner], &[corner, corner], &[true, true])
+        .expect_err("two hands in a one-hand plant");
+    assert!(error.to_string().contains("hands"), "{error}");
+
+    // Replaying the clip moves the object as the clip did (a fresh plant:
+    // the scripted hands grip at the first replay).
+    let mut replay = MujocoPlant::start(&truth, 1).expect("plant");
+    for t in 0..config.frames - 1 {
+        replay.replay(t).expect("replay");
+    }
+    let replayed = replay.state().expect("state");
+    assert!(replayed.x.iter().flatten().all(|c| c.is_finite()));
+    let moved = centre_of(&replayed.x, &everywhere);
+    let travel = (0..3)
+        .map(|a| (moved[a] - centre[a]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(
+        travel > 0.005,
+        "the replayed clip moved the cloth {travel} m"
+    );
+}

@@ -3,6 +3,7 @@
 //! up axis from the bundle, material patches on the first-frame
 //! particles, actuators driven by the hand tracks), and open-loop rollouts.
 
+pub mod corrected;
 pub mod device;
 pub mod extension;
 pub mod hand_filter;
@@ -488,9 +489,10 @@ impl WorldModel {
     /// residual network runs on the CPU).
     pub fn simulation_on(&self, device: device::Device) -> Result<Simulation, ModelError> {
         Ok(Simulation {
-            world: device::DeviceWorld::new(self.world()?, device)?,
-            network: self.residual_network()?,
-            starts: Vec::new(),
+            world: corrected::CorrectedWorld::new(
+                device::DeviceWorld::new(self.world()?, device)?,
+                self.residual_network()?.map(std::sync::Arc::new),
+            ),
             frames: 0,
         })
     }
@@ -516,10 +518,7 @@ impl WorldModel {
 /// the same frames.
 #[derive(Debug)]
 pub struct Simulation {
-    world: device::DeviceWorld,
-    network: Option<dm_residual::Residual>,
-    /// The frame starts the network reads (kept only with a network).
-    starts: Vec<residual::FrameStart>,
+    world: corrected::CorrectedWorld,
     frames: usize,
 }
 
@@ -527,7 +526,7 @@ impl Simulation {
     /// The MPM world (particle state, configuration), its state fetched
     /// from the GPU first when it runs there.
     pub fn world(&mut self) -> Result<&World<f32>, ModelError> {
-        self.world.host()
+        self.world.world().host()
     }
 
     /// The device the MPM world runs on.
@@ -565,27 +564,14 @@ impl Simulation {
         to: &[[f64; 3]],
         grasp: &[bool],
     ) -> Result<(), ModelError> {
-        let Some(network) = &self.network else {
-            self.world.step_frame(from, to, grasp)?;
-            self.frames += 1;
-            return Ok(());
-        };
-        self.starts.push(residual::frame_start(self.world.host()?));
-        let t = self.starts.len() - 1;
-        if let Err(error) = self.world.step_frame(from, to, grasp) {
-            self.starts.pop();
-            return Err(error);
-        }
-        let starts = &self.starts;
-        self.world
-            .edit(|world| residual::apply_residual(world, network, starts, t))??;
+        self.world.step_frame(from, to, grasp)?;
         self.frames += 1;
         Ok(())
     }
 
     /// Lets go of the object (see [`World::release_grasps`]).
     pub fn release_grasps(&mut self) -> Result<(), ModelError> {
-        self.world.edit(World::release_grasps)
+        self.world.release_grasps()
     }
 
     /// Replaces the world by one built from `physics` and `material` (the
@@ -608,7 +594,9 @@ impl Simulation {
             model.actuator,
         )?;
         world.set_state(&state)?;
-        self.world = device::DeviceWorld::new(world, self.world.device())?;
+        let device = self.world.device();
+        self.world
+            .replace_world(device::DeviceWorld::new(world, device)?);
         Ok(())
     }
 }

@@ -329,21 +329,14 @@ pub fn simulate_foreign(
     config: &SynthConfig,
     progress: Progress<'_>,
 ) -> Result<ForeignTruth, SynthError> {
-    check_effect(config)?;
+    let Scene {
+        hands,
+        cloud,
+        mesh,
+        request,
+        effect_extra,
+    } = Scene::of(config)?;
     let preset = config.preset;
-    let action = config.resolved_action();
-    let hands = plan(preset, action, config.two_hands, config.frames as f64 / FPS);
-    let cloud = truth_cloud(config);
-    let mesh = FlexMesh::for_preset(preset);
-    let mut effect_extra = BTreeMap::new();
-    let request = scene_request(
-        config,
-        &hands,
-        &cloud,
-        &mesh,
-        config.effect,
-        &mut effect_extra,
-    );
     let (frames, mut engine) = run_engine(&request, "foreign simulation", progress)?;
     engine.flex_dim = mesh.dim;
     engine.flex_vertices = mesh.vertices.len();
@@ -538,25 +531,46 @@ pub(crate) fn write_request(
     config: &SynthConfig,
     dir: &Path,
 ) -> Result<(std::path::PathBuf, ParticleCloud), SynthError> {
-    check_effect(config)?;
-    let hands = plan(
-        config.preset,
-        config.resolved_action(),
-        config.two_hands,
-        config.frames as f64 / FPS,
-    );
-    let cloud = truth_cloud(config);
-    let mesh = FlexMesh::for_preset(config.preset);
-    let request = scene_request(
-        config,
-        &hands,
-        &cloud,
-        &mesh,
-        config.effect,
-        &mut BTreeMap::new(),
-    );
-    write_files(&request, dir)?;
-    Ok((dir.join("mujoco_scene.py"), cloud))
+    let scene = Scene::of(config)?;
+    write_files(&scene.request, dir)?;
+    Ok((dir.join("mujoco_scene.py"), scene.cloud))
+}
+
+/// A scene's parts as the simulator gets them.
+struct Scene {
+    hands: Vec<HandScript>,
+    cloud: ParticleCloud,
+    mesh: FlexMesh,
+    request: Request,
+    /// What the hidden effect drew (its direction, its field).
+    effect_extra: BTreeMap<String, serde_json::Value>,
+}
+
+impl Scene {
+    fn of(config: &SynthConfig) -> Result<Self, SynthError> {
+        check_effect(config)?;
+        let action = config.resolved_action();
+        let duration = config.frames as f64 / FPS;
+        let hands = plan(config.preset, action, config.two_hands, duration);
+        let cloud = truth_cloud(config);
+        let mesh = FlexMesh::for_preset(config.preset);
+        let mut effect_extra = BTreeMap::new();
+        let request = scene_request(
+            config,
+            &hands,
+            &cloud,
+            &mesh,
+            config.effect,
+            &mut effect_extra,
+        );
+        Ok(Self {
+            hands,
+            cloud,
+            mesh,
+            request,
+            effect_extra,
+        })
+    }
 }
 
 fn write_files(request: &Request, dir: &Path) -> Result<(), SynthError> {

@@ -6,9 +6,11 @@
 use crate::DiagnoseError;
 use dm_bundle::Bundle;
 use dm_model::WorldModel;
+use dm_model::corrected::CorrectedWorld;
+use dm_model::device::{Device, DeviceWorld};
 use dm_model::metrics::{FrameErrors, frame_errors};
-use dm_model::residual::{apply_residual, frame_start};
 use dm_mpm::neighbors::PointIndex;
+use std::sync::Arc;
 
 /// An open-loop rollout with the learned residual's per-frame mean |Δv|.
 #[derive(Clone, Debug)]
@@ -22,19 +24,17 @@ pub struct Rollout {
 
 /// Rolls `model` out over the whole clip, recording the residual's Δv.
 pub fn rollout(model: &WorldModel, bundle: &Bundle) -> Result<Rollout, DiagnoseError> {
-    let mut world = model.world()?;
-    let network = model.residual_network()?;
+    let mut world = CorrectedWorld::new(
+        DeviceWorld::new(model.world()?, Device::Cpu)?,
+        model.residual_network()?.map(Arc::new),
+    );
     let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
-    let mut positions = vec![as_f32(world.positions())];
-    let mut starts = Vec::new();
+    let mut positions = vec![as_f32(world.positions()?)];
     let mut residual_dv = Vec::new();
     let mut residual_dv_mean = Vec::new();
     for t in 0..bundle.frame_count().saturating_sub(1) {
-        starts.push(frame_start(&world));
         let (from, to, grasp) = model.hand_step(bundle, t);
-        world.step_frame(&from, &to, &grasp)?;
-        if let Some(network) = &network {
-            let (dv, _) = apply_residual(&mut world, network, &starts, t)?;
+        if let Some(dv) = world.step_frame(&from, &to, &grasp)? {
             let n = dv.len().max(1) as f64;
             residual_dv.push(dv.iter().map(|d| norm(*d)).sum::<f64>() / n);
             let mut mean = [0.0; 3];
@@ -45,7 +45,7 @@ pub fn rollout(model: &WorldModel, bundle: &Bundle) -> Result<Rollout, DiagnoseE
             }
             residual_dv_mean.push(mean);
         }
-        positions.push(as_f32(world.positions()));
+        positions.push(as_f32(world.positions()?));
     }
     Ok(Rollout {
         positions,

@@ -103,15 +103,16 @@ impl<T: DeviceReal> CorrectedWorld<T> {
     }
 
     /// One frame with the hands moving from `from` to `to` (grasping where
-    /// `grasp`), then the network's correction.
+    /// `grasp`), then the network's correction; returns the Δv it applied.
     pub fn step_frame(
         &mut self,
         from: &[[f64; 3]],
         to: &[[f64; 3]],
         grasp: &[bool],
-    ) -> Result<(), ModelError> {
+    ) -> Result<Option<Vec<[f64; 3]>>, ModelError> {
         let Some(network) = &self.network else {
-            return self.world.step_frame(from, to, grasp);
+            self.world.step_frame(from, to, grasp)?;
+            return Ok(None);
         };
         self.starts.push(frame_start(self.world.host()?));
         let t = self.starts.len() - 1;
@@ -120,14 +121,15 @@ impl<T: DeviceReal> CorrectedWorld<T> {
             return Err(error);
         }
         let starts = &self.starts;
-        self.world
+        let (dv, _) = self
+            .world
             .edit(|world| apply_residual(world, network, starts, t))??;
-        Ok(())
+        Ok(Some(dv))
     }
 
     /// One frame without hands.
     pub fn step_frame_free(&mut self) -> Result<(), ModelError> {
-        self.step_frame(&[], &[], &[])
+        self.step_frame(&[], &[], &[]).map(drop)
     }
 
     /// [`Self::step_frame`], recording its last `window` substeps and the

@@ -22,4 +22,4 @@ pub use device::CudaDevice;
 pub use error::CudaError;
 pub use frame::DeviceFrameTape;
 pub use kernels::Precision;
-pub use world::{CudaWorld, DeviceReal};
+pub use world::{CudaWorld, DeviceReal, unsupported};

@@ -523,16 +523,21 @@ fn flat_weights<T: Real>(weights: &[[T; 3]]) -> Vec<T> {
 
 /// Refuses worlds using what the kernels do not have.
 fn check_supported<T: Real>(world: &World<T>) -> Result<(), CudaError> {
+    match unsupported(world) {
+        Some(problem) => Err(CudaError::Unsupported(format!(
+            "{problem}; use --device cpu"
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// What of `world` the kernels do not have, if anything.
+pub fn unsupported<T: Real>(world: &World<T>) -> Option<&'static str> {
     if world.config().effects.viscosity != 0.0 {
-        return Err(CudaError::Unsupported(
-            "viscosity (the grid's implicit viscous solve runs on the CPU only); use --device cpu"
-                .into(),
-        ));
+        return Some("viscosity (the grid's implicit viscous solve runs on the CPU only)");
     }
     if !world.config().effects.force_field.is_zero() {
-        return Err(CudaError::Unsupported(
-            "a body force (effects.force_field runs on the CPU only); use --device cpu".into(),
-        ));
+        return Some("a body force (effects.force_field runs on the CPU only)");
     }
-    Ok(())
+    None
 }

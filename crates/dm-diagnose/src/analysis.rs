@@ -22,10 +22,17 @@ pub struct Rollout {
     pub residual_dv_mean: Vec<[f64; 3]>,
 }
 
-/// Rolls `model` out over the whole clip, recording the residual's Δv.
-pub fn rollout(model: &WorldModel, bundle: &Bundle) -> Result<Rollout, DiagnoseError> {
+/// Rolls `model` out over the whole clip on `device` (the CPU where the
+/// world needs it), recording the residual's Δv.
+pub fn rollout(
+    model: &WorldModel,
+    bundle: &Bundle,
+    device: Device,
+) -> Result<Rollout, DiagnoseError> {
+    let world = model.world()?;
+    let device = device.for_world(&world);
     let mut world = CorrectedWorld::new(
-        DeviceWorld::new(model.world()?, Device::Cpu)?,
+        DeviceWorld::new(world, device)?,
         model.residual_network()?.map(Arc::new),
     );
     let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();

@@ -29,6 +29,7 @@ use crate::signatures::Signatures;
 use crate::{DiagnoseError, Progress, relative_reduction, selection_frames};
 use dm_bundle::{Bundle, Tracks};
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use dm_model::metrics::{match_tracks, split_mean, track_errors};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -146,6 +147,7 @@ struct Injection<'a> {
     base_positions: &'a [Vec<[f32; 3]>],
     matched: Vec<Option<usize>>,
     threshold: f64,
+    device: Device,
 }
 
 impl Injection<'_> {
@@ -159,7 +161,7 @@ impl Injection<'_> {
         trials: &[&TrialRun],
     ) -> Option<f64> {
         let injected = apply(self.model, candidate, parameters);
-        let run = rollout(&injected, self.bundle).ok()?;
+        let run = rollout(&injected, self.bundle, self.device).ok()?;
         let tracks = self.displaced_tracks(&run.positions);
         let frames = selection_frames(self.bundle.meta.split.train);
         let errors = |positions: &[Vec<[f32; 3]>]| {
@@ -192,6 +194,7 @@ pub(crate) fn trial_runs(
     bundle: &Bundle,
     signatures: &Signatures,
     named: Option<Candidate>,
+    device: Device,
     progress: Progress<'_>,
 ) -> Vec<TrialRun> {
     let all: Vec<_> = Candidate::ALL
@@ -204,7 +207,7 @@ pub(crate) fn trial_runs(
         .enumerate()
         .filter_map(|(i, trial)| {
             progress("trials on the extended model", i, total);
-            let run = rollout(&trial.model, bundle).ok()?;
+            let run = rollout(&trial.model, bundle, device).ok()?;
             Some(TrialRun {
                 candidate: trial.candidate,
                 parameters: trial.parameters,
@@ -226,6 +229,7 @@ pub(crate) fn detectability(
     trials: &[TrialRun],
     threshold: f64,
     steps: usize,
+    device: Device,
     progress: Progress<'_>,
 ) -> Result<BTreeMap<String, Limit>, DiagnoseError> {
     let first: Vec<[f64; 3]> = base_positions
@@ -239,6 +243,7 @@ pub(crate) fn detectability(
         base_positions,
         matched: match_tracks(&first, &bundle.tracks),
         threshold,
+        device,
     };
     let mut limits = BTreeMap::new();
     for (i, &candidate) in Candidate::ALL.iter().enumerate() {
@@ -271,7 +276,7 @@ pub(crate) fn detectability(
             ActionVariant::ALL.len(),
         );
         let varied = variant.bundle(bundle);
-        let Ok(run) = rollout(model, &varied) else {
+        let Ok(run) = rollout(model, &varied, device) else {
             continue;
         };
         let observed = displaced(
@@ -287,6 +292,7 @@ pub(crate) fn detectability(
             base_positions: &run.positions,
             matched: injection.matched.clone(),
             threshold,
+            device,
         };
         for &candidate in &untestable {
             let own: Vec<TrialRun> = trials
@@ -297,7 +303,7 @@ pub(crate) fn detectability(
                     Some(TrialRun {
                         candidate,
                         parameters: t.parameters.clone(),
-                        positions: rollout(&trial, &varied).ok()?.positions,
+                        positions: rollout(&trial, &varied, device).ok()?.positions,
                     })
                 })
                 .collect();

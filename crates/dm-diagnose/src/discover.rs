@@ -24,6 +24,7 @@
 //! through the adjoint with the material (`dm_fit`'s body-force group),
 //! reported in closed form with Gauss–Newton standard deviations, and the
 //! extended model is measured on the test split, which no choice used.
+//! A body force runs on the CPU only, so discovery does not use the GPU.
 
 use crate::analysis::{match_tracks, rollout};
 use crate::{DiagnoseError, Progress, Scored, relative_reduction, score_trial, selection_frames};
@@ -34,6 +35,7 @@ use dm_fit::learnt_effects::{
 };
 use dm_fit::material_fit::{MaterialFitConfig, fit_material};
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use serde::Serialize;
 
 /// A term is dropped when it moves the tracks by less than this (m, RMS
@@ -307,7 +309,7 @@ fn tracks(
     bundle: &Bundle,
     frames: usize,
 ) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
-    let run = rollout(model, bundle)?;
+    let run = rollout(model, bundle, Device::Cpu)?;
     let matched = match_tracks(bundle, &run.positions);
     let frames = frames.min(matched.observed.len());
     let (mut simulated, mut observed) = (Vec::new(), Vec::new());
@@ -429,7 +431,7 @@ pub(crate) fn discover(
         let effects = term_effects(&values, terms, &columns, residual.len());
         let mut order: Vec<usize> = terms.indices().collect();
         order.sort_by(|&a, &b| effects[a].total_cmp(&effects[b]));
-        selected = score_trial(&current, bundle);
+        selected = score_trial(&current, bundle, Device::Cpu);
         for (k, &i) in order.iter().enumerate() {
             progress("validating the discovered terms", k, order.len());
             let mut without = current.clone();
@@ -439,7 +441,7 @@ pub(crate) fn discover(
             if rest.any() {
                 regress(&mut without, bundle, rest, fit_end, &mut |_| {})?;
             }
-            let scored = score_trial(&without, bundle);
+            let scored = score_trial(&without, bundle, Device::Cpu);
             if scored.track_validation <= selected.track_validation * (1.0 + VALIDATION_MARGIN) {
                 current = without;
                 selected = scored;
@@ -486,7 +488,7 @@ pub(crate) fn discover(
             model: None,
         });
     }
-    let mut scored = score_trial(&current, bundle);
+    let mut scored = score_trial(&current, bundle, Device::Cpu);
     // The material refitted with the terms learnt beside it; kept only if
     // it lowers the training track error.
     let mut material_refit_kept = false;
@@ -503,7 +505,7 @@ pub(crate) fn discover(
             );
         });
         if fitted.is_ok() {
-            let s = score_trial(&refitted, bundle);
+            let s = score_trial(&refitted, bundle, Device::Cpu);
             if s.track_train < scored.track_train {
                 current = refitted;
                 scored = s;

@@ -31,8 +31,9 @@ pub mod signatures;
 use analysis::{Rollout, main_axis, match_tracks, per_track_error, region_errors, rollout};
 use candidates::{Candidate, Trial, apply, refinements, trials, with_learnt_parameters};
 use dm_bundle::{Bundle, write_json_atomic};
-use dm_fit::material_fit::{MaterialFitConfig, fit_material, train_loss};
+use dm_fit::material_fit::{MaterialFitConfig, fit_material, train_loss_on};
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use dm_model::metrics::split_mean;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -89,6 +90,10 @@ pub struct DiagnoseOptions {
     #[arg(long, default_value_t = detectability::DEFAULT_DETECT_STEPS)]
     #[serde(default = "default_detect_steps")]
     pub detect_steps: usize,
+    /// Where rollouts and refits run (cuda: the first NVIDIA GPU; variants with viscosity or a body force run on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    #[serde(default)]
+    pub device: Device,
 }
 
 fn default_detect_steps() -> usize {
@@ -113,6 +118,7 @@ impl Default for DiagnoseOptions {
             fit_candidates: false,
             discover_iters: DEFAULT_DISCOVER_ITERS,
             detect_steps: detectability::DEFAULT_DETECT_STEPS,
+            device: Device::Cpu,
         }
     }
 }
@@ -283,8 +289,12 @@ pub(crate) struct Scored {
     track_per_frame: Vec<f64>,
 }
 
-fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout), DiagnoseError> {
-    let run = rollout(model, bundle)?;
+fn score_model(
+    model: &WorldModel,
+    bundle: &Bundle,
+    device: Device,
+) -> Result<(Scored, Rollout), DiagnoseError> {
+    let run = rollout(model, bundle, device)?;
     let errors = analysis::errors(model, bundle, &run.positions);
     let split = &bundle.meta.split;
     let frames = selection_frames(split.train);
@@ -303,8 +313,8 @@ fn score_model(model: &WorldModel, bundle: &Bundle) -> Result<(Scored, Rollout),
 
 /// A trial's errors; a diverging or unbuildable trial scores infinity
 /// (e.g. a stiffness needing more substeps than allowed).
-pub(crate) fn score_trial(model: &WorldModel, bundle: &Bundle) -> Scored {
-    score_model(model, bundle)
+pub(crate) fn score_trial(model: &WorldModel, bundle: &Bundle, device: Device) -> Scored {
+    score_model(model, bundle, device)
         .map(|(s, _)| s)
         .unwrap_or_else(|_| Scored::failed())
 }
@@ -333,7 +343,7 @@ impl SplitTrackError {
 /// candidate: the splits' mean track error, infinite where the rollout
 /// diverges or the model cannot be built.
 pub fn split_track_error(model: &WorldModel, bundle: &Bundle) -> SplitTrackError {
-    let scored = score_trial(model, bundle);
+    let scored = score_trial(model, bundle, Device::Cpu);
     SplitTrackError {
         train: scored.track_train,
         test: scored.track_test,
@@ -384,7 +394,7 @@ pub fn diagnose(
         problem: e.to_string(),
     })?;
 
-    let shown = show(&model, &bundle, progress)?;
+    let shown = show(&model, &bundle, options.device, progress)?;
     let mut named = name(model_dir, &model, &bundle, &shown, options, out, progress)?;
     let (extended, refit) = extend(&model, &model_path, &bundle, &mut named, options, progress)?;
     let limits = detection_limits(
@@ -483,10 +493,11 @@ struct Shown {
 fn show(
     model: &WorldModel,
     bundle: &Bundle,
+    device: Device,
     progress: Progress<'_>,
 ) -> Result<Shown, DiagnoseError> {
     progress("base rollout", 0, 1);
-    let (base, base_run) = score_model(model, bundle)?;
+    let (base, base_run) = score_model(model, bundle, device)?;
     let split = bundle.meta.split;
     let matched = match_tracks(bundle, &base_run.positions);
     let up = model
@@ -576,7 +587,7 @@ fn name(
         progress(&format!("candidate {}", trial.candidate.name()), i, total);
         // A diverging or unbuildable trial scores infinity (e.g. a
         // stiffness needing more substeps than allowed).
-        let scored = match score_model(&trial.model, bundle) {
+        let scored = match score_model(&trial.model, bundle, options.device) {
             Ok((scored, run)) => {
                 trial_runs.push(detectability::TrialRun {
                     candidate: trial.candidate,
@@ -598,7 +609,14 @@ fn name(
     }
     let mut fit_records = Vec::new();
     if options.fit_candidates {
-        let fits = fit_candidates(model_dir, bundle, &best_per_candidate, out, progress)?;
+        let fits = fit_candidates(
+            model_dir,
+            bundle,
+            &best_per_candidate,
+            options.device,
+            out,
+            progress,
+        )?;
         for CandidateFit {
             name,
             model: fitted,
@@ -702,7 +720,7 @@ fn extend(
     let effect_trials = refine.len();
     for (i, t) in refine.into_iter().enumerate() {
         progress("refining the effect parameter", i, effect_trials);
-        let s = score_trial(&t.model, bundle);
+        let s = score_trial(&t.model, bundle, options.device);
         if s.track_train < best_trial.1.track_train {
             best_trial = (t, s);
         }
@@ -710,7 +728,8 @@ fn extend(
     let (trial, mut scored) = best_trial;
     let mut extended_model = trial.model.clone();
     let (record, refitted) = if options.fit_candidates {
-        let before = train_loss(&extended_model, bundle, bundle.meta.split.train[1])?;
+        let device = options.device.for_model(&extended_model)?;
+        let before = train_loss_on(&extended_model, bundle, bundle.meta.split.train[1], device)?;
         (
             RefitRecord {
                 effect_trials: 0,
@@ -726,7 +745,7 @@ fn extend(
         refit_material(&extended_model, bundle, options, progress)?
     };
     if let Some(refitted) = refitted {
-        let s = score_trial(&refitted, bundle);
+        let s = score_trial(&refitted, bundle, options.device);
         if s.track_train < scored.track_train {
             extended_model = refitted;
             scored = s;
@@ -811,6 +830,7 @@ fn detection_limits(
             runs,
             options.none_threshold,
             options.detect_steps,
+            options.device,
             progress,
         )
     };
@@ -820,9 +840,15 @@ fn detection_limits(
                 .iter()
                 .copied()
                 .find(|c| c.name() == named.cause);
-            let runs =
-                detectability::trial_runs(extended, bundle, &shown.signatures, cause, progress);
-            let positions = rollout(extended, bundle)?.positions;
+            let runs = detectability::trial_runs(
+                extended,
+                bundle,
+                &shown.signatures,
+                cause,
+                options.device,
+                progress,
+            );
+            let positions = rollout(extended, bundle, options.device)?.positions;
             limits(extended, &positions, &runs, progress)
         }
         None => limits(
@@ -922,12 +948,13 @@ fn fit_candidates(
     model_dir: &Path,
     bundle: &Bundle,
     best: &BTreeMap<&'static str, (Trial, Scored)>,
+    device: Device,
     out: &Path,
     progress: Progress<'_>,
 ) -> Result<Vec<CandidateFit>, DiagnoseError> {
     let report_path = model_dir.join("fit_report.json");
     let report: dm_fit::run::FitReport = dm_bundle::read_json(&report_path)?;
-    let options = report.options;
+    let mut options = report.options;
     let mut fitted = Vec::with_capacity(best.len());
     for (i, (&name, (trial, _))) in best.iter().enumerate() {
         progress(
@@ -937,13 +964,14 @@ fn fit_candidates(
         );
         let start = WorldModel::from_bundle(bundle, &options.model)?;
         let start = apply(&start, trial.candidate, &trial.parameters);
+        options.device = device.for_model(&start)?;
         let dir = out.join("candidate_fits").join(name);
         let result = dm_fit::run::run_fit_from(bundle, &options, start, &dir, &mut |_| {})
             .and_then(|_| Ok(dm_bundle::read_json::<WorldModel>(&dir.join("model.json"))?));
         match result {
             Ok(model) => fitted.push(CandidateFit {
                 name,
-                scored: score_trial(&model, bundle),
+                scored: score_trial(&model, bundle, device),
                 model,
             }),
             Err(_) => fitted.push(CandidateFit {
@@ -965,7 +993,8 @@ fn refit_material(
     progress: Progress<'_>,
 ) -> Result<(RefitRecord, Option<WorldModel>), DiagnoseError> {
     let frames = bundle.meta.split.train[1];
-    let before = train_loss(model, bundle, frames)?;
+    let device = options.device.for_model(model)?;
+    let before = train_loss_on(model, bundle, frames, device)?;
     let blank = |note: &str| RefitRecord {
         effect_trials: 0,
         material_iterations: 0,
@@ -980,6 +1009,7 @@ fn refit_material(
     let mut refitted = model.clone();
     let config = MaterialFitConfig {
         iterations: options.refit_iters,
+        device,
         ..MaterialFitConfig::default()
     };
     let mut done = 0;
@@ -993,7 +1023,7 @@ fn refit_material(
             None,
         ));
     }
-    let after = train_loss(&refitted, bundle, frames)?;
+    let after = train_loss_on(&refitted, bundle, frames, device)?;
     Ok((
         RefitRecord {
             effect_trials: 0,

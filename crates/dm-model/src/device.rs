@@ -23,6 +23,26 @@ pub enum Device {
     Cuda,
 }
 
+impl Device {
+    /// `self`, or the CPU where `world` needs what only the CPU has (the
+    /// implicit viscous solve, a body force): for tools that step many
+    /// variants of a model and keep the GPU for those it can run.
+    pub fn for_world<T: dm_mpm::Real>(self, world: &World<T>) -> Device {
+        match self {
+            Device::Cuda if dm_cuda::unsupported(world).is_some() => Device::Cpu,
+            device => device,
+        }
+    }
+
+    /// [`Device::for_world`] for `model`'s world.
+    pub fn for_model(self, model: &crate::WorldModel) -> Result<Device, ModelError> {
+        Ok(match self {
+            Device::Cpu => Device::Cpu,
+            Device::Cuda => self.for_world(&model.world()?),
+        })
+    }
+}
+
 /// The process's GPU: opened, and its kernels compiled, once.
 fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
     static GPU: Mutex<Option<Arc<CudaDevice>>> = Mutex::new(None);

@@ -14,7 +14,9 @@
 #    on the CPU, their times and results; then, with the scene's truth file
 #    beside it (FIT_SCENE.truth.json), a 120-frame plan (dm-plan's
 #    defaults, goal place, carried out in the truth world) with the
-#    GPU-fitted model on both devices.
+#    GPU-fitted model on both devices;
+# 5. with DIAGNOSE_MODEL and DIAGNOSE_SCENE set (the demo's diag_model and
+#    diag_scene): dm-diagnose on both devices, its time and named cause.
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -72,5 +74,13 @@ if [ -n "${FIT_SCENE:-}" ]; then
             python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-plan $device: %.1f s, %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm' % (r['seconds'], r['rollouts'], 1e3*r['start']['final_chamfer_m'], 1e3*r['planned']['final_chamfer_m'], 1e3*r['executed']['final_chamfer_m']))" "$OUT_DIR/plan-$device/plan.json"
         done
     fi
+fi
+if [ -n "${DIAGNOSE_MODEL:-}" ] && [ -n "${DIAGNOSE_SCENE:-}" ]; then
+    mkdir -p "$OUT_DIR"
+    for device in cuda cpu; do
+        SECONDS=0
+        run "$BIN/dm-diagnose" "$DIAGNOSE_MODEL" "$DIAGNOSE_SCENE" --out "$OUT_DIR/diagnose-$device" --device "$device"
+        python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print('dm-diagnose $device: %.1f s, cause %s (confidence %.2f)' % (float(sys.argv[2]), d['cause'], d['confidence']))" "$OUT_DIR/diagnose-$device/diagnosis.json" "$SECONDS"
+    done
 fi
 exit $status

@@ -234,3 +234,29 @@ impl<T: DeviceReal> DeviceWorld<T> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::ModelError;
+    use dm_mpm::SimError;
+
+    /// A divergence reported by the GPU world is the simulation's error,
+    /// as the CPU world's is.
+    #[test]
+    fn a_divergence_on_either_device_is_the_simulations_error() {
+        let diverged = || SimError::Diverged {
+            frame: 1,
+            substep: 2,
+            particle: 3,
+            reason: "non-finite position".into(),
+        };
+        let on_gpu = ModelError::Device(dm_cuda::CudaError::Sim(diverged()));
+        assert!(matches!(
+            on_gpu.simulation(),
+            Some(SimError::Diverged { particle: 3, .. })
+        ));
+        assert!(ModelError::Simulation(diverged()).simulation().is_some());
+        let driver = ModelError::Device(dm_cuda::CudaError::NoDriver);
+        assert!(driver.simulation().is_none());
+    }
+}

@@ -38,6 +38,17 @@ pub enum ModelError {
     InvalidOption { option: String, problem: String },
 }
 
+impl ModelError {
+    /// The simulation's own error (a divergence, a step it refused), on
+    /// either device.
+    pub fn simulation(&self) -> Option<&SimError> {
+        match self {
+            ModelError::Simulation(e) | ModelError::Device(dm_cuda::CudaError::Sim(e)) => Some(e),
+            _ => None,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum ExpertChoice {

@@ -146,7 +146,7 @@ pub fn refine(
                 Ok(result) => result,
                 // A step into a diverging plan ends the refinement; the best
                 // iterate so far stands.
-                Err(PlanError::Simulation(_)) if iteration > 0 => break,
+                Err(e) if e.is_simulation() && iteration > 0 => break,
                 Err(other) => return Err(other),
             };
         history.push(value);

@@ -42,10 +42,50 @@ pub enum PlanError {
     File { path: PathBuf, problem: String },
 }
 
+impl PlanError {
+    /// Whether the simulator failed on the plan (it diverged, or refused a
+    /// step), on either device: a bad sample or step, not a failed run.
+    pub fn is_simulation(&self) -> bool {
+        match self {
+            PlanError::Simulation(_) => true,
+            PlanError::Model(e) => e.simulation().is_some(),
+            _ => false,
+        }
+    }
+}
+
 /// An `InvalidOption` error.
 pub(crate) fn invalid(option: &str, problem: impl Into<String>) -> PlanError {
     PlanError::InvalidOption {
         option: option.into(),
         problem: problem.into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn diverged() -> dm_mpm::SimError {
+        dm_mpm::SimError::Diverged {
+            frame: 3,
+            substep: 7,
+            particle: 11,
+            reason: "det F <= 0".into(),
+        }
+    }
+
+    /// Rollouts return the simulator's errors wrapped by the model layer
+    /// (CPU or GPU); a search treats every form as a bad sample.
+    #[test]
+    fn a_divergence_is_a_simulation_failure_however_it_is_wrapped() {
+        assert!(PlanError::Simulation(diverged()).is_simulation());
+        assert!(PlanError::Model(dm_model::ModelError::Simulation(diverged())).is_simulation());
+        let bad_option = PlanError::Model(dm_model::ModelError::InvalidOption {
+            option: "x".into(),
+            problem: "y".into(),
+        });
+        assert!(!bad_option.is_simulation());
+        assert!(!invalid("--goal", "unknown").is_simulation());
     }
 }

@@ -43,7 +43,7 @@ impl Search<'_> {
                 Ok(value + penalty)
             }
             // A sample that diverges is a bad sample, not a failed search.
-            Err(PlanError::Simulation(_)) => Ok(f64::INFINITY),
+            Err(e) if e.is_simulation() => Ok(f64::INFINITY),
             Err(other) => Err(other),
         }
     }

@@ -38,6 +38,7 @@ one JSON line on stdout, {"ok": true} or {"ok": false, "error": ...}:
 """
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -85,7 +86,7 @@ def flex_xml(req, planned_hands=0):
         for v in h["held_vertices"]:
             a = verts[v] - np.asarray(h["grasp"])
             grips.append(
-                f'<connect body1="hand{k}" body2="object_{v}" anchor="{a[0]:.6f} {a[1]:.6f} {a[2]:.6f}" solref="0.004 1"{active}/>'
+                f'<connect name="grip{k}_{v}" body1="hand{k}" body2="object_{v}" anchor="{a[0]:.6f} {a[1]:.6f} {a[2]:.6f}" solref="0.004 1"{active}/>'
             )
     # Planned hands rest far above until they grasp.
     hands += "".join(
@@ -94,7 +95,7 @@ def flex_xml(req, planned_hands=0):
     for k in range(planned_hands):
         for v in range(len(verts)):
             grips.append(
-                f'<connect body1="plan{k}" body2="object_{v}" anchor="0 0 0" solref="0.004 1" active="false"/>'
+                f'<connect name="plan{k}_{v}" body1="plan{k}" body2="object_{v}" anchor="0 0 0" solref="0.004 1" active="false"/>'
             )
     return f"""
 <mujoco model="dm-synth foreign scene">
@@ -316,6 +317,8 @@ class Plant:
     def __init__(self, req, planned_hands, hold_radius):
         self.model = mujoco.MjModel.from_xml_string(flex_xml(req, planned_hands))
         apply_mass_and_drag(self.model, req)
+        # A diverging step must stay diverged (reported), not reset to rest.
+        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         self.data = mujoco.MjData(self.model)
         self.req, self.hold_radius = req, hold_radius
         self.nv = self.model.flex_vertnum[0]
@@ -330,14 +333,15 @@ class Plant:
         self.scripted_mocap = [self.model.body_mocapid[body(f"hand{k}")] for k in range(len(self.poses))]
         self.planned_body = [body(f"plan{k}") for k in range(planned_hands)]
         self.planned_mocap = [self.model.body_mocapid[b] for b in self.planned_body]
-        # Equalities in the model's order: the scripted grips, then each
-        # planned hand's grip on every vertex.
-        self.scripted_grips, start = [], 0
-        for k, h in enumerate(req["hands"]):
-            ids = list(range(start, start + len(h["held_vertices"])))
-            self.scripted_grips.append((body(f"hand{k}"), ids, h["held_vertices"]))
-            start += len(ids)
-        self.planned_start = start
+        equality = lambda name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_EQUALITY, name)
+        self.scripted_grips = [
+            (body(f"hand{k}"), [equality(f"grip{k}_{v}") for v in h["held_vertices"]], h["held_vertices"])
+            for k, h in enumerate(req["hands"])
+        ]
+        # Each planned hand's grip on every vertex.
+        self.planned_grips = [
+            [equality(f"plan{k}_{v}") for v in range(self.nv)] for k in range(planned_hands)
+        ]
         self.scripted_held = False
         self.set_scripted(0, 0.0)
         mujoco.mj_forward(self.model, self.data)
@@ -358,8 +362,9 @@ class Plant:
         return self.embedding.positions(np.array(self.data.flexvert_xpos[: self.nv]))
 
     def grip(self, hand_body, eq_ids, vertices):
-        """Holds `vertices` where they are now, relative to the hand."""
-        mujoco.mj_kinematics(self.model, self.data)
+        """Holds `vertices` where they are now, relative to the hand
+        (positions brought up to date first)."""
+        mujoco.mj_forward(self.model, self.data)
         hand_x, hand_r = self.data.xpos[hand_body], self.data.xmat[hand_body].reshape(3, 3)
         for eq, v in zip(eq_ids, vertices):
             b = self.vertex_body[v]
@@ -378,7 +383,11 @@ class Plant:
             move((s + 1) / self.substeps)
             mujoco.mj_step(self.model, self.data)
         verts = self.data.flexvert_xpos[: self.nv]
-        if not np.all(np.isfinite(verts)) or np.abs(verts).max() > 100.0:
+        bad = sum(
+            self.data.warning[int(w)].number
+            for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+        )
+        if bad or not np.all(np.isfinite(verts)) or np.abs(verts).max() > 100.0:
             raise RuntimeError("the MuJoCo simulation diverged")
         self.previous, self.current = self.current, self.cloud()
 
@@ -393,7 +402,8 @@ class Plant:
     def release(self):
         for _, ids, _ in self.scripted_grips:
             self.let_go(ids)
-        self.let_go(range(self.planned_start, self.planned_start + len(self.planned_body) * self.nv))
+        for ids in self.planned_grips:
+            self.let_go(ids)
         self.scripted_held = False
 
     def step(self, start, end, grasp):
@@ -407,13 +417,13 @@ class Plant:
         for k, body in enumerate(self.planned_body):
             self.data.mocap_pos[self.planned_mocap[k]] = start[k]
             if grasp[k]:
-                ids = range(self.planned_start + k * self.nv, self.planned_start + (k + 1) * self.nv)
-                self.let_go(ids)
+                self.let_go(self.planned_grips[k])
+                mujoco.mj_forward(self.model, self.data)
                 near = np.linalg.norm(self.data.flexvert_xpos[: self.nv] - start[k], axis=1)
                 held = np.flatnonzero(near < self.hold_radius)
                 if len(held) == 0:
                     held = [int(near.argmin())]
-                self.grip(body, [self.planned_start + k * self.nv + v for v in held], held)
+                self.grip(body, [self.planned_grips[k][v] for v in held], held)
 
         def move(frac):
             for k in range(len(self.planned_body)):
@@ -428,7 +438,11 @@ class Plant:
 
 def serve(root, planned_hands, hold_radius):
     req = json.loads((root / "request.json").read_text())
-    out = sys.stdout.buffer
+    # The answers get the process's stdout to themselves: MuJoCo's C code
+    # prints its warnings to file descriptor 1, which now goes to stderr.
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
 
     def answer(header, payload=b""):
         out.write((json.dumps(header) + "\n").encode())

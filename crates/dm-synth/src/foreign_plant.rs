@@ -28,6 +28,9 @@ pub struct MujocoPlant {
     output: BufReader<ChildStdout>,
     particles: usize,
     hands: usize,
+    /// Set when an answer could not be read whole: the stream is out of
+    /// step and the child is killed, not asked to stop.
+    broken: bool,
     /// Which truth particles are on the surface.
     pub surface: Vec<bool>,
     /// Kept until the child has gone: it holds the script and request.
@@ -79,6 +82,7 @@ impl MujocoPlant {
             output: BufReader::new(output),
             particles: cloud.len(),
             hands,
+            broken: false,
             surface: cloud.on_surface,
             _dir: dir,
         };
@@ -139,15 +143,17 @@ impl MujocoPlant {
         self.send(&json!({"op": "state"}))?;
         let answer = self.answer("state")?;
         if answer.particles != Some(self.particles) {
+            self.broken = true;
             return Err(engine_error(format!(
                 "the simulator sent {:?} particles, the scene has {}",
                 answer.particles, self.particles
             )));
         }
         let mut bytes = vec![0u8; 2 * self.particles * 3 * 4];
-        self.output
-            .read_exact(&mut bytes)
-            .map_err(|e| engine_error(format!("reading the state: {e}")))?;
+        if let Err(e) = self.output.read_exact(&mut bytes) {
+            self.broken = true;
+            return Err(engine_error(format!("reading the state: {e}")));
+        }
         let values: Vec<f32> = bytes
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
@@ -180,11 +186,12 @@ impl MujocoPlant {
 
     fn answer(&mut self, what: &str) -> Result<Answer, SynthError> {
         let mut line = String::new();
-        let read = self
-            .output
-            .read_line(&mut line)
-            .map_err(|e| engine_error(format!("reading the answer to `{what}`: {e}")))?;
+        let read = self.output.read_line(&mut line).map_err(|e| {
+            self.broken = true;
+            engine_error(format!("reading the answer to `{what}`: {e}"))
+        })?;
         if read == 0 {
+            self.broken = true;
             let status = self.child.try_wait().ok().flatten();
             return Err(engine_error(format!(
                 "the simulator stopped before answering `{what}` ({})",
@@ -192,6 +199,7 @@ impl MujocoPlant {
             )));
         }
         let answer: Answer = serde_json::from_str(&line).map_err(|e| {
+            self.broken = true;
             engine_error(format!("the answer to `{what}` is not JSON ({e}): {line}"))
         })?;
         if !answer.ok {
@@ -206,11 +214,14 @@ impl MujocoPlant {
 
 impl Drop for MujocoPlant {
     fn drop(&mut self) {
-        // Ask it to stop; a child that does not is killed.
-        let _ = writeln!(self.input, "{}", json!({"op": "quit"}));
-        let _ = self.input.flush();
-        let mut line = String::new();
-        let _ = self.output.read_line(&mut line);
+        // Ask it to stop (when it still follows the protocol); a child that
+        // has not stopped then is killed.
+        if !self.broken {
+            let _ = writeln!(self.input, "{}", json!({"op": "quit"}));
+            let _ = self.input.flush();
+            let mut line = String::new();
+            let _ = self.output.read_line(&mut line);
+        }
         if !matches!(self.child.try_wait(), Ok(Some(_))) {
             let _ = self.child.kill();
         }

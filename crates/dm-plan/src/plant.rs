@@ -98,21 +98,17 @@ impl Plant {
     /// The surface particles, which a goal is compared with.
     pub fn outline(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
         let positions = self.positions()?;
-        Ok(match self {
-            Plant::Model { surface_count, .. } => positions[..*surface_count].to_vec(),
-            Plant::Truth { surface, .. } => positions
-                .iter()
-                .zip(surface)
-                .filter(|(_, s)| **s)
-                .map(|(p, _)| *p)
-                .collect(),
-            Plant::Foreign { plant, .. } => positions
-                .iter()
-                .zip(&plant.surface)
-                .filter(|(_, s)| **s)
-                .map(|(p, _)| *p)
-                .collect(),
-        })
+        let surface: &[bool] = match self {
+            Plant::Model { surface_count, .. } => return Ok(positions[..*surface_count].to_vec()),
+            Plant::Truth { surface, .. } => surface,
+            Plant::Foreign { plant, .. } => &plant.surface,
+        };
+        Ok(positions
+            .iter()
+            .zip(surface)
+            .filter(|(_, s)| **s)
+            .map(|(p, _)| *p)
+            .collect())
     }
 
     /// The anchors that stand for the planned hands at `hands`.

@@ -6,6 +6,7 @@
 //! hand track drives the first frames; after it the hands hold still.
 
 use dm_bundle::Bundle;
+use dm_model::device::Device;
 use dm_model::residual::{RESIDUAL_ALPHA, apply_residual, frame_start};
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Preset, SynthConfig};
@@ -49,7 +50,7 @@ fn long_rollout(preset: Preset, kind: ResidualKind, seed: u64) {
         *w += WEIGHT_NOISE * noise();
     }
     let network = model
-        .residual_network()
+        .residual_network_on(Device::Cpu)
         .expect("network")
         .expect("residual present");
     let mut world = model.world().expect("world");

@@ -2,11 +2,13 @@
 # GPU checks of the CUDA world (docs/gpu.md), run from prebuilt binaries:
 #   bash benches/gpu/check.sh [BIN_DIR [SCENE MODEL_DIR [OUT]]]
 # 1. parity against the CPU world (f64 and f32, two scenes): positions
-#    after frames, and every group of one substep's adjoint;
+#    after frames, and every group of one substep's adjoint; the residual
+#    network (both kinds) against the CPU's: Δv and every gradient;
 # 2. substep throughput, 1e5 particles on a 32³ grid and 1e6 on 128³,
 #    Neo-Hookean and the expert mixture, with the CPU figure beside it;
 #    one truncated window (20 substeps, forward and backward) at 1e5
-#    particles, with its gradients against the CPU's;
+#    particles, with its gradients against the CPU's; one frame of the
+#    residual network (forward and VJP, 8 000 particles) on both;
 # 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
 #    the GPU (times and largest position difference), and the playground's
 #    frame with all the model's particles at its substeps on both;
@@ -14,7 +16,8 @@
 #    on the CPU, their times and results; then, with the scene's truth file
 #    beside it (FIT_SCENE.truth.json), a 120-frame plan (dm-plan's
 #    defaults, goal place, carried out in the truth world) with the
-#    GPU-fitted model on both devices;
+#    GPU-fitted model on both devices; with FIT_DEFAULTS=1 also dm-fit's
+#    defaults (the pgnd residual included) on the GPU;
 # 5. with DIAGNOSE_MODEL and DIAGNOSE_SCENE set (the demo's diag_model and
 #    diag_scene): dm-diagnose on both devices, its time and named cause.
 # Every step runs even when an earlier one fails; the exit status is the
@@ -50,6 +53,9 @@ for setup in "100000 32" "1000000 128"; do
 done
 run "$BIN/dm-bench" grad --device cuda --particles 100000 --window 20 --grid 32 --repeats 5
 run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
+for device in cuda cpu; do
+    run "$BIN/dm-bench" residual --device "$device" --particles 8000 --repeats 9
+done
 if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     mkdir -p "$OUT_DIR"
     for device in cpu cuda; do
@@ -67,6 +73,10 @@ if [ -n "${FIT_SCENE:-}" ]; then
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$device" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$device"
         python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit $device: %.1f s, E %.4g Pa, final loss %.5g' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final']))" "$OUT_DIR/fit-$device/fit_report.json"
     done
+    if [ "${FIT_DEFAULTS:-0}" = 1 ]; then
+        run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-defaults-cuda" --device cuda
+        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit defaults cuda: %.1f s, E %.4g Pa, final loss %.5g, residual %s' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final'], json.dumps(r['residual'])[:200]))" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
+    fi
     if [ -e "$FIT_SCENE.truth.json" ]; then
         for device in cuda cpu; do
             run "$BIN/dm-plan" "$OUT_DIR/fit-cuda" --bundle "$FIT_SCENE" --goal place \

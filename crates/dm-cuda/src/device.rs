@@ -87,12 +87,13 @@ impl CudaDevice {
         &self.arch
     }
 
-    pub(crate) fn kernels(&self, precision: Precision) -> Result<Kernels, CudaError> {
+    /// The kernels of `precision`, compiled on first use.
+    pub(crate) fn module(&self, precision: Precision) -> Result<Arc<CudaModule>, CudaError> {
         let mut modules = self
             .modules
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let module = match modules.get(&precision) {
+        Ok(match modules.get(&precision) {
             Some(module) => module.clone(),
             None => {
                 let ptx = kernels::compile(precision, &self.arch)?;
@@ -100,7 +101,11 @@ impl CudaDevice {
                 modules.insert(precision, module.clone());
                 module
             }
-        };
+        })
+    }
+
+    pub(crate) fn kernels(&self, precision: Precision) -> Result<Kernels, CudaError> {
+        let module = self.module(precision)?;
         Ok(Kernels {
             cell_count: module.load_function("cell_count")?,
             scan_chunks: module.load_function("scan_chunks")?,

@@ -24,4 +24,6 @@ pub enum CudaError {
     Unsupported(String),
     #[error(transparent)]
     Sim(#[from] SimError),
+    #[error(transparent)]
+    Residual(#[from] dm_residual::ResidualError),
 }

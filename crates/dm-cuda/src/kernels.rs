@@ -21,7 +21,7 @@ impl Precision {
 }
 
 /// The kernel files in the order they are concatenated into one unit.
-pub const FILES: [(&str, &str); 15] = [
+pub const FILES: [(&str, &str); 17] = [
     ("common.cuh", include_str!("../kernels/common.cuh")),
     ("svd.cuh", include_str!("../kernels/svd.cuh")),
     ("stress.cuh", include_str!("../kernels/stress.cuh")),
@@ -55,9 +55,14 @@ pub const FILES: [(&str, &str); 15] = [
         "actuators_backward.cu",
         include_str!("../kernels/actuators_backward.cu"),
     ),
+    ("residual.cu", include_str!("../kernels/residual.cu")),
+    (
+        "residual_backward.cu",
+        include_str!("../kernels/residual_backward.cu"),
+    ),
 ];
 
-/// Entry points every module has.
+/// The MPM substep's entry points.
 pub const ENTRY_POINTS: [&str; 15] = [
     "cell_count",
     "scan_chunks",
@@ -74,6 +79,37 @@ pub const ENTRY_POINTS: [&str; 15] = [
     "p2g_backward",
     "actuator_accel_backward",
     "zero_coupled",
+];
+
+/// The residual network's entry points.
+pub const RESIDUAL_ENTRY_POINTS: [&str; 27] = [
+    "residual_gemm",
+    "residual_fill_rows",
+    "residual_relu",
+    "residual_column_sums",
+    "residual_group_sums",
+    "residual_norm_forward",
+    "residual_column_max",
+    "residual_pooled_bias",
+    "residual_mark_nodes",
+    "residual_number_nodes",
+    "residual_stencil_slots",
+    "residual_node_encoding",
+    "residual_spline_weights",
+    "residual_node_sums",
+    "residual_node_divide",
+    "residual_to_particles",
+    "residual_bound",
+    "residual_relu_backward",
+    "residual_scale_columns",
+    "residual_norm_backward",
+    "residual_pooled_backward",
+    "residual_spline_weights_backward",
+    "residual_node_means_backward_nodes",
+    "residual_node_means_backward_features",
+    "residual_node_means_backward_weights",
+    "residual_to_particles_backward",
+    "residual_bound_backward",
 ];
 
 /// The whole translation unit for `precision`.

@@ -15,6 +15,7 @@ mod error;
 mod frame;
 pub mod kernels;
 mod launch;
+mod residual;
 mod world;
 
 pub use backward::{AdjointSeconds, DeviceTape, WindowGrads};
@@ -22,4 +23,5 @@ pub use device::CudaDevice;
 pub use error::CudaError;
 pub use frame::DeviceFrameTape;
 pub use kernels::Precision;
+pub use residual::CudaResidual;
 pub use world::{CudaWorld, DeviceReal, unsupported};

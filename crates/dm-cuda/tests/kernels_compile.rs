@@ -4,7 +4,9 @@
 
 use dm_cuda::Precision;
 use dm_cuda::consts::layout_check_source;
-use dm_cuda::kernels::{ENTRY_POINTS, compile, compile_source, nvrtc_available};
+use dm_cuda::kernels::{
+    ENTRY_POINTS, RESIDUAL_ENTRY_POINTS, compile, compile_source, nvrtc_available,
+};
 
 #[test]
 fn every_kernel_compiles_to_ptx_in_both_precisions() {
@@ -20,7 +22,7 @@ fn every_kernel_compiles_to_ptx_in_both_precisions() {
             let ptx = compile(precision, arch)
                 .unwrap_or_else(|e| panic!("{precision:?} for {arch}: {e}"))
                 .to_src();
-            for entry in ENTRY_POINTS {
+            for entry in ENTRY_POINTS.iter().chain(&RESIDUAL_ENTRY_POINTS) {
                 assert!(
                     ptx.contains(&format!(".entry {entry}(")),
                     "{precision:?} {arch}: no entry point {entry}"

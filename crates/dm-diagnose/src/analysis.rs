@@ -33,7 +33,7 @@ pub fn rollout(
     let device = device.for_world(&world);
     let mut world = CorrectedWorld::new(
         DeviceWorld::new(world, device)?,
-        model.residual_network()?.map(Arc::new),
+        model.residual_network_on(device)?.map(Arc::new),
     );
     let as_f32 = |ps: Vec<[f64; 3]>| ps.iter().map(|p| p.map(|c| c as f32)).collect::<Vec<_>>();
     let mut positions = vec![as_f32(world.positions()?)];

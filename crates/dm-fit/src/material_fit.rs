@@ -290,7 +290,7 @@ pub fn loss_and_gradient_on(
     }
     let steps = frames - 1;
     let mut world = DeviceWorld::of_model(model, device)?;
-    let network = model.residual_network()?;
+    let network = model.residual_network_on(device)?;
     let n = world.particle_count();
     let fixed = FixedTerms::new(model, bundle)?;
     // Σ_p |Δv_p|² / n per frame, averaged over frames like L_dyn.
@@ -613,7 +613,7 @@ pub fn train_frame_losses_on(
     let steps = frames.saturating_sub(1);
     let fixed = FixedTerms::new(model, bundle)?;
     let mut world = DeviceWorld::of_model(model, device)?;
-    let network = model.residual_network()?;
+    let network = model.residual_network_on(device)?;
     let mut starts: Vec<FrameStart> = Vec::new();
     let mut losses = Vec::with_capacity(steps);
     for t in 0..steps {

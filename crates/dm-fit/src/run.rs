@@ -94,8 +94,8 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ParticleDamping::Fixed)]
     #[serde(default)]
     pub damping: ParticleDamping,
-    /// Where the MPM world and its adjoint run (cuda: the first NVIDIA GPU;
-    /// the residual network, losses and optimiser stay on the CPU).
+    /// Where the MPM world, the residual network and their adjoints run
+    /// (cuda: the first NVIDIA GPU; losses and optimiser stay on the CPU).
     #[arg(long, value_enum, default_value_t = Device::Cpu)]
     #[serde(default)]
     pub device: Device,

@@ -12,19 +12,21 @@ use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
 use dm_mpm::tape::FrameGrads;
+use dm_residual::FrameInputs;
 use dm_residual::features::ParticleState;
-use dm_residual::{FrameInputs, Residual};
 
 use crate::ModelError;
 use crate::device::{DeviceReal, DeviceTape, DeviceWorld};
-use crate::residual::{FrameStart, apply_residual, frame_inputs, frame_start, residual_backward};
+use crate::residual::{
+    FrameStart, ResidualNetwork, apply_residual, frame_inputs, frame_start, residual_backward,
+};
 
 /// The MPM world and, with a network, the frame starts since the state
 /// was last set.
 #[derive(Debug)]
 pub struct CorrectedWorld<T: DeviceReal = f32> {
     world: DeviceWorld<T>,
-    network: Option<Arc<Residual>>,
+    network: Option<Arc<ResidualNetwork>>,
     /// Kept only with a network.
     starts: Vec<FrameStart>,
 }
@@ -56,7 +58,7 @@ pub struct FrameAdjoint<T> {
 }
 
 impl<T: DeviceReal> CorrectedWorld<T> {
-    pub fn new(world: DeviceWorld<T>, network: Option<Arc<Residual>>) -> Self {
+    pub fn new(world: DeviceWorld<T>, network: Option<Arc<ResidualNetwork>>) -> Self {
         Self {
             world,
             network,

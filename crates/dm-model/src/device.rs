@@ -44,7 +44,7 @@ impl Device {
 }
 
 /// The process's GPU: opened, and its kernels compiled, once.
-fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
+pub(crate) fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
     static GPU: Mutex<Option<Arc<CudaDevice>>> = Mutex::new(None);
     let mut gpu = GPU
         .lock()

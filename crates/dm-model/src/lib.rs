@@ -371,6 +371,16 @@ impl WorldModel {
             .transpose()
     }
 
+    /// [`WorldModel::residual_network`] on `device`.
+    pub fn residual_network_on(
+        &self,
+        device: device::Device,
+    ) -> Result<Option<residual::ResidualNetwork>, ModelError> {
+        self.residual_network()?
+            .map(|network| residual::ResidualNetwork::new(network, device))
+            .transpose()
+    }
+
     /// A fresh MPM world of this model at the first frame (with its
     /// extension's stiff ball and density gradient).
     pub fn world(&self) -> Result<World<f32>, ModelError> {
@@ -496,13 +506,13 @@ impl WorldModel {
         self.simulation_on(device::Device::Cpu)
     }
 
-    /// [`WorldModel::simulation`] with the MPM world on `device` (the
-    /// residual network runs on the CPU).
+    /// [`WorldModel::simulation`] with the MPM world and the residual
+    /// network on `device`.
     pub fn simulation_on(&self, device: device::Device) -> Result<Simulation, ModelError> {
         Ok(Simulation {
             world: corrected::CorrectedWorld::new(
                 device::DeviceWorld::new(self.world()?, device)?,
-                self.residual_network()?.map(std::sync::Arc::new),
+                self.residual_network_on(device)?.map(std::sync::Arc::new),
             ),
             frames: 0,
         })

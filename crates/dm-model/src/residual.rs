@@ -4,12 +4,16 @@
 //! fit chains with the physics adjoint.
 
 use crate::ModelError;
+use crate::device::{Device, shared_gpu};
+use dm_cuda::CudaResidual;
 use dm_mpm::World;
 use dm_mpm::correction::CorrectionTape;
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Real, Vec3};
 use dm_residual::features::history_of;
-use dm_residual::{FrameInputs, NetworkSize, Residual, ResidualKind, ResidualSpec};
+use dm_residual::{
+    FrameInputs, NetworkSize, Precision, Residual, ResidualGrads, ResidualKind, ResidualSpec,
+};
 use serde::{Deserialize, Serialize};
 
 /// Bound on |Δv| (method.md §5: α = 1.0 m/s).
@@ -60,6 +64,60 @@ impl ResidualState {
     }
 }
 
+/// A residual network on the device its world runs on: the CPU, or the
+/// GPU (dm-cuda's kernels; inputs and results still pass through the host).
+#[derive(Debug)]
+pub enum ResidualNetwork {
+    Cpu(Residual),
+    Cuda(Box<CudaResidual<f32>>),
+    CudaF64(Box<CudaResidual<f64>>),
+}
+
+impl ResidualNetwork {
+    /// `network` on `device`, in its own precision.
+    pub fn new(network: Residual, device: Device) -> Result<Self, ModelError> {
+        Ok(match (device, network.precision()) {
+            (Device::Cpu, _) => Self::Cpu(network),
+            (Device::Cuda, Precision::F32) => {
+                Self::Cuda(Box::new(CudaResidual::new(shared_gpu()?, &network)?))
+            }
+            (Device::Cuda, Precision::F64) => {
+                Self::CudaF64(Box::new(CudaResidual::new(shared_gpu()?, &network)?))
+            }
+        })
+    }
+
+    /// Δv for one frame (see `Residual::predict`).
+    pub fn predict(&self, inputs: &FrameInputs) -> Result<Vec<[f64; 3]>, ModelError> {
+        Ok(match self {
+            Self::Cpu(network) => network.predict(inputs)?,
+            Self::Cuda(network) => network.predict(inputs)?,
+            Self::CudaF64(network) => network.predict(inputs)?,
+        })
+    }
+
+    /// The vector-Jacobian product (see `Residual::vjp`).
+    pub fn vjp(
+        &self,
+        inputs: &FrameInputs,
+        grad_dv: &[[f64; 3]],
+    ) -> Result<ResidualGrads, ModelError> {
+        Ok(match self {
+            Self::Cpu(network) => network.vjp(inputs, grad_dv)?,
+            Self::Cuda(network) => network.vjp(inputs, grad_dv)?,
+            Self::CudaF64(network) => network.vjp(inputs, grad_dv)?,
+        })
+    }
+
+    pub fn parameter_count(&self) -> usize {
+        match self {
+            Self::Cpu(network) => network.parameter_count(),
+            Self::Cuda(network) => network.parameter_count(),
+            Self::CudaF64(network) => network.parameter_count(),
+        }
+    }
+}
+
 /// Positions and velocities at the start of a frame (caller's order).
 pub type FrameStart = (Vec<[f64; 3]>, Vec<[f64; 3]>);
 
@@ -82,7 +140,7 @@ pub fn frame_inputs<T: Real>(world: &World<T>, starts: &[FrameStart], t: usize) 
 /// Predicts Δv for the frame just stepped and applies it.
 pub fn apply_residual<T: Real>(
     world: &mut World<T>,
-    network: &Residual,
+    network: &ResidualNetwork,
     starts: &[FrameStart],
     t: usize,
 ) -> Result<(Vec<[f64; 3]>, CorrectionTape), ModelError> {
@@ -108,7 +166,7 @@ pub struct ResidualFrameGrads {
 /// the substeps (x̃, ṽ; F and C pass through). `regulariser` is the
 /// weight of Σ_p |Δv_p|² in the loss (its gradient is added to Δv's).
 pub fn residual_backward<T: Real>(
-    network: &Residual,
+    network: &ResidualNetwork,
     inputs: &FrameInputs,
     dv: &[[f64; 3]],
     tape: &CorrectionTape,

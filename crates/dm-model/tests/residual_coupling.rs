@@ -6,7 +6,7 @@
 //! central finite differences.
 
 use dm_model::residual::{
-    FrameStart, apply_residual, frame_inputs, frame_start, residual_backward,
+    FrameStart, ResidualNetwork, apply_residual, frame_inputs, frame_start, residual_backward,
 };
 use dm_mpm::g2p_backward::ParticleGrads;
 use dm_mpm::real::{Mat3, Vec3};
@@ -90,6 +90,10 @@ fn network(w: &World<f64>) -> Residual {
     net
 }
 
+fn on_cpu(net: &Residual) -> ResidualNetwork {
+    ResidualNetwork::Cpu(net.clone())
+}
+
 fn probe(n: usize) -> ParticleGrads<f64> {
     let mut r = stream(13);
     ParticleGrads {
@@ -108,7 +112,7 @@ fn forward(net: &Residual, probe: &ParticleGrads<f64>) -> f64 {
     for t in 0..FRAMES {
         starts.push(frame_start(&w));
         w.step_frame(&[], &[], &[]).expect("frame");
-        let (dv, _) = apply_residual(&mut w, net, &starts, t).expect("residual");
+        let (dv, _) = apply_residual(&mut w, &on_cpu(net), &starts, t).expect("residual");
         penalty += dv.iter().flatten().map(|c| c * c).sum::<f64>();
     }
     let s = w.state();
@@ -134,13 +138,14 @@ fn issue4_residual_gradient_through_the_physics_matches_finite_differences() {
         starts.push(frame_start(&w));
         w.step_frame(&[], &[], &[]).expect("frame");
         corrections.push(
-            apply_residual(&mut w, &net, &starts, t)
+            apply_residual(&mut w, &on_cpu(&net), &starts, t)
                 .expect("residual")
                 .0,
         );
     }
     let mut carried = probe.clone();
     let mut gradient = vec![0.0; net.parameter_count()];
+    let cpu = on_cpu(&net);
     for t in (0..FRAMES).rev() {
         w.set_state(&checkpoints[t]).expect("state");
         let tape = w
@@ -151,7 +156,7 @@ fn issue4_residual_gradient_through_the_physics_matches_finite_differences() {
             .apply_velocity_correction(&corrections[t])
             .expect("correction");
         let grads = residual_backward(
-            &net,
+            &cpu,
             &inputs,
             &corrections[t],
             &correction_tape,

@@ -12,11 +12,12 @@ use std::sync::Arc;
 use dm_model::WorldModel;
 use dm_model::corrected::CorrectedWorld;
 use dm_model::device::{Device, DeviceReal, DeviceWorld};
+use dm_model::residual::ResidualNetwork;
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::{ActuatorConfig, ActuatorMode, World};
 use dm_play::PlayOptions;
 use dm_play::session::CoarseModel;
-use dm_residual::{Precision, Residual};
+use dm_residual::Precision;
 
 use crate::PlanError;
 use crate::actions::ActionPlan;
@@ -27,7 +28,7 @@ pub struct PlanningModel {
     coarse: CoarseModel,
     actuator: ActuatorConfig,
     experts: dm_model::ExpertChoice,
-    residual: Option<Arc<Residual>>,
+    residual: Option<Arc<ResidualNetwork>>,
     device: Device,
 }
 
@@ -65,8 +66,9 @@ impl PlanningModel {
     }
 
     /// The same world with `model`'s residual network correcting every
-    /// frame (`precision`: f32 for planning, f64 for gradient checks); an
-    /// error when the model has none.
+    /// frame (`precision`: f32 for planning, f64 for gradient checks), on
+    /// the planning device (set that first); an error when the model has
+    /// none.
     pub fn with_residual(
         mut self,
         model: &WorldModel,
@@ -78,7 +80,8 @@ impl PlanningModel {
                 "the model has no residual network (fitted with `--residual none`)",
             )
         })?;
-        self.residual = Some(Arc::new(state.network(precision)?));
+        let network = ResidualNetwork::new(state.network(precision)?, self.device)?;
+        self.residual = Some(Arc::new(network));
         Ok(self)
     }
 

@@ -83,7 +83,9 @@ pub const MIN_NODE_WEIGHT: f64 = 1e-6;
 
 /// Fourier bands of the node-position encoding (method.md §5: L = 6).
 pub const FOURIER_BANDS: usize = 6;
-const NODE_ENCODING: usize = 3 + 6 * FOURIER_BANDS;
+/// Columns of the node-position encoding: the position and a sine and a
+/// cosine per band and axis.
+pub const NODE_ENCODING: usize = 3 + 6 * FOURIER_BANDS;
 
 /// The element type a network computes in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -664,6 +666,25 @@ impl<'a, T: Scalar> Net<'a, T> {
     }
 }
 
+/// The 27 input channels of every particle (row-major, particles × 27):
+/// x̃, ṽ, x̃ − x_t and the history, positions centred on x̃'s centroid.
+pub fn input_channels(inputs: &FrameInputs) -> Vec<f64> {
+    std::mem::take(&mut Net::<f64>::channels(inputs).data)
+}
+
+/// The adjoints of x̃, ṽ, x_t and of the history's (x, v), newest first,
+/// from the adjoint of [`input_channels`]' matrix.
+pub fn input_channels_backward(grad: Vec<f64>) -> ([Vec<[f64; 3]>; 3], Vec<ParticleState>) {
+    let rows = grad.len() / CHANNELS;
+    let grad = Rows::from_values(grad, rows * CHANNELS, CHANNELS);
+    let [x, v, s] = Net::<f64>::channels_backward(&grad);
+    let history = Net::<f64>::history_backward(&grad)
+        .iter()
+        .map(|[hx, hv]| (from_rows(hx), from_rows(hv)))
+        .collect();
+    ([from_rows(&x), from_rows(&v), from_rows(&s)], history)
+}
+
 /// [`take_block_gradient`] from a list not needed afterwards.
 fn block_gradient<T: Scalar>(mut blocks: Vec<Option<Rows<T>>>, i: usize) -> Rows<T> {
     take_block_gradient(&mut blocks, i)
@@ -739,6 +760,14 @@ impl Residual {
         &self.spec
     }
 
+    /// The element type the network computes in.
+    pub fn precision(&self) -> Precision {
+        match self.weights {
+            Weights::F32(_) => Precision::F32,
+            Weights::F64(_) => Precision::F64,
+        }
+    }
+
     fn net<'a, T>(&'a self, weights: &'a [T]) -> Net<'a, T> {
         Net {
             spec: &self.spec,
@@ -775,8 +804,7 @@ impl Residual {
 
     /// Δv for one frame (m/s, caller's order).
     pub fn predict(&self, inputs: &FrameInputs) -> Result<Vec<[f64; 3]>, ResidualError> {
-        inputs.validate()?;
-        self.check_grid(inputs)?;
+        self.check_inputs(inputs)?;
         Ok(match &self.weights {
             Weights::F32(w) => from_rows(&self.net(w).forward(inputs).0),
             Weights::F64(w) => from_rows(&self.net(w).forward(inputs).0),
@@ -790,8 +818,7 @@ impl Residual {
         inputs: &FrameInputs,
         grad_dv: &[[f64; 3]],
     ) -> Result<ResidualGrads, ResidualError> {
-        inputs.validate()?;
-        self.check_grid(inputs)?;
+        self.check_inputs(inputs)?;
         if grad_dv.len() != inputs.particle_count() {
             return Err(ResidualError::Input {
                 field: "grad_dv".into(),
@@ -824,6 +851,21 @@ impl Residual {
 
     pub fn parameter_count(&self) -> usize {
         self.layout.total
+    }
+
+    /// The shape and the slice of [`Residual::parameters`] of weight tensor
+    /// `name` (`enc1.weight`: outputs × inputs, `enc1.bias`,
+    /// `enc1.norm.weight`, …), for other backends running the same layers.
+    pub fn tensor(&self, name: &str) -> Option<(Vec<usize>, std::ops::Range<usize>)> {
+        let (shape, _) = self.layout.tensors.get(name)?;
+        Some((shape.clone(), self.layout.range(name)))
+    }
+
+    /// Checks `inputs` as [`Residual::predict`] does: sizes, finiteness and
+    /// the grid's reach.
+    pub fn check_inputs(&self, inputs: &FrameInputs) -> Result<(), ResidualError> {
+        inputs.validate()?;
+        self.check_grid(inputs)
     }
 
     /// All weights as one flat vector (tensors sorted by name).

@@ -366,3 +366,44 @@ fn issue4_vjp_is_finite_where_a_node_gets_a_vanishing_spline_weight() {
         .count();
     assert_eq!((bad_parameters, bad_inputs), (0, 0), "non-finite gradients");
 }
+
+/// The input channels (which other backends form on the host) and their
+/// adjoint: the channels are linear in the inputs, so
+/// ⟨adjoint(g), δ⟩ = ⟨g, channels(inputs + δ) − channels(inputs)⟩ holds
+/// to round-off for any g and δ.
+#[test]
+fn the_input_channels_adjoint_is_their_transpose() {
+    use dm_residual::network::{input_channels, input_channels_backward};
+    let n = 30;
+    let inputs = cloud(n, 41);
+    let delta = cloud(n, 43);
+    let moved = FrameInputs {
+        x_tilde: shifted(&inputs.x_tilde, &delta.x_tilde, 1.0),
+        v_tilde: shifted(&inputs.v_tilde, &delta.v_tilde, 1.0),
+        x_start: shifted(&inputs.x_start, &delta.x_start, 1.0),
+        history: inputs
+            .history
+            .iter()
+            .zip(&delta.history)
+            .map(|((x, v), (dx, dv))| (shifted(x, dx, 1.0), shifted(v, dv, 1.0)))
+            .collect(),
+    };
+    let mut r = stream(47);
+    let g: Vec<f64> = (0..n * dm_residual::CHANNELS).map(|_| r()).collect();
+    let change: f64 = input_channels(&moved)
+        .iter()
+        .zip(input_channels(&inputs))
+        .zip(&g)
+        .map(|((a, b), g)| (a - b) * g)
+        .sum();
+    let ([x, v, s], history) = input_channels_backward(g);
+    let mut through_adjoint =
+        dot(&x, &delta.x_tilde) + dot(&v, &delta.v_tilde) + dot(&s, &delta.x_start);
+    for ((hx, hv), (dx, dv)) in history.iter().zip(&delta.history) {
+        through_adjoint += dot(hx, dx) + dot(hv, dv);
+    }
+    assert!(
+        (change - through_adjoint).abs() <= 1e-12 * change.abs().max(1.0),
+        "⟨g, Δchannels⟩ {change:.15e} vs ⟨adjoint(g), δ⟩ {through_adjoint:.15e}"
+    );
+}

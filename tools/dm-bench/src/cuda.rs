@@ -223,12 +223,20 @@ pub fn parity(particles: usize, frames: usize) -> Result<()> {
         gradients &= gradient_parity_run::<f64>(&device, scene, particles)?;
         gradients &= gradient_parity_run::<f32>(&device, scene, particles)?;
     }
+    let residual = crate::residual::parity::<f64>(&device, particles)?
+        & crate::residual::parity::<f32>(&device, particles)?;
     if !passed {
         bail!("the CUDA world differs from the CPU world beyond {POSITION_PARITY:e} of the domain");
     }
     if !gradients {
         bail!(
             "a gradient of the CUDA adjoint differs from the CPU's (cosine below {GRADIENT_COSINE} or norm off by more than {GRADIENT_NORM})"
+        );
+    }
+    if !residual {
+        bail!(
+            "the residual network on the GPU differs from the CPU's (Δv beyond {:e} of α, or a gradient as above)",
+            crate::residual::DV_PARITY
         );
     }
     Ok(())
@@ -330,7 +338,7 @@ fn frame_groups<T: DeviceReal>(g: &dm_mpm::tape::FrameGrads<T>) -> Vec<(&'static
 
 /// Prints each group's agreement after `label`; whether every group
 /// passes.
-fn report_agreement(
+pub fn report_agreement(
     label: &str,
     want: Vec<(&'static str, Vec<f64>)>,
     got: Vec<(&'static str, Vec<f64>)>,

@@ -9,6 +9,7 @@ use std::time::Instant;
 
 mod cuda;
 mod images;
+mod residual;
 
 #[derive(Parser, Debug)]
 #[command(name = "dm-bench", about = "DeformMaster benchmarks")]
@@ -95,6 +96,8 @@ enum Command {
         /// Timed repetitions after one warm-up (the median is printed).
         #[arg(long, default_value_t = 5)]
         repeats: usize,
+        #[arg(long, value_enum, default_value_t = Device::Cpu)]
+        device: Device,
     },
     /// Gaussian-splat render (forward, then backward of a squared-error
     /// loss) of seeded random Gaussians in a 0.3 m ball seen from 0.7 m.
@@ -233,7 +236,14 @@ fn main() -> Result<()> {
             particles,
             grid,
             repeats,
-        } => residual_frame(particles, grid, repeats)?,
+            device,
+        } => {
+            let gpu = match device {
+                Device::Cpu => None,
+                Device::Cuda => Some(dm_cuda::CudaDevice::open(0)?),
+            };
+            residual::frame(particles, grid, repeats, gpu)?
+        }
         Command::Render {
             gaussians,
             width,
@@ -259,58 +269,6 @@ fn main() -> Result<()> {
             lpips_threads,
         } => images::metrics(width, height, repeats, lpips_threads)?,
     }
-    Ok(())
-}
-
-fn residual_frame(particles: usize, grid: usize, repeats: usize) -> Result<()> {
-    use dm_residual::{FrameInputs, HISTORY, NetworkSize, Residual, ResidualKind, ResidualSpec};
-    let world = bench_block::<f32>(particles, grid, BenchExperts::NeoHookean, 0)
-        .context("building the benchmark block")?;
-    let config = world.config();
-    let mut network = Residual::new(
-        ResidualSpec {
-            kind: ResidualKind::Pgnd,
-            size: NetworkSize::default(),
-            alpha: 1.0,
-            grid_origin: config.domain_origin,
-            grid_dx: config.dx(),
-            domain_size: config.domain_size,
-            seed: 0,
-        },
-        dm_residual::Precision::F32,
-    )?;
-    // Non-zero last layer, so the backward pass does all its work.
-    let weights: Vec<f64> = (0..network.parameter_count())
-        .map(|i| 0.05 * ((i as f64) * 0.618_034).fract() - 0.025)
-        .collect();
-    network.set_parameters(&weights)?;
-    let x = world.positions();
-    let v: Vec<[f64; 3]> = x.iter().map(|p| [0.1 * p[1], -0.1 * p[0], 0.05]).collect();
-    let inputs = FrameInputs {
-        x_tilde: x.clone(),
-        v_tilde: v.clone(),
-        x_start: x.clone(),
-        history: vec![(x.clone(), v.clone()); HISTORY],
-    };
-    let upstream = vec![[1e-3, -2e-3, 5e-4]; x.len()];
-    let mut timings = Vec::new();
-    let mut checksum = 0.0;
-    for repeat in 0..=repeats.max(1) {
-        let start = Instant::now();
-        let dv = network.predict(&inputs)?;
-        let grads = network.vjp(&inputs, &upstream)?;
-        if repeat > 0 {
-            timings.push(start.elapsed().as_secs_f64());
-        }
-        checksum = dv.iter().flatten().sum::<f64>() + grads.parameters.iter().sum::<f64>();
-    }
-    timings.sort_by(f64::total_cmp);
-    println!("residual_frame_s {:.4}", timings[timings.len() / 2]);
-    eprintln!(
-        "# {particles} particles, grid {grid}^3, {} weights, forward + vjp; checksum {checksum:.4e}; {} threads",
-        network.parameter_count(),
-        rayon::current_num_threads()
-    );
     Ok(())
 }
 

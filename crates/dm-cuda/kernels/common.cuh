@@ -8,6 +8,13 @@
 typedef REAL real;
 
 #define DM_SINGLE (sizeof(real) == 4)
+
+// Names the precision in the compiled module (`.entry dm_precision_float`
+// or `dm_precision_double`) for tools that read the PTX, such as the CUDA
+// emulator of the tests.
+#define DM_PASTE_TOKENS(a, b) a##b
+#define DM_PASTE(a, b) DM_PASTE_TOKENS(a, b)
+extern "C" __global__ void DM_PASTE(dm_precision_, REAL)() {}
 #define FULL_MASK 0xffffffffu
 
 // Mirrors `dm_cuda::consts::KernelConsts` field for field.

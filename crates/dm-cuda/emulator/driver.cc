@@ -1,0 +1,430 @@
+// A CPU emulation of the part of the CUDA driver API the DeformMaster
+// kernels are launched through (cudarc), for tests on machines without a
+// GPU: device memory is host memory, every stream runs its work at once
+// in call order, and a launch runs the kernel's blocks one after another,
+// each block's threads as fibers of one host thread that switch at
+// barriers and warp shuffles (x86-64 Linux). It checks what the kernels compute (indices,
+// arithmetic, the host code around them), not the GPU's concurrency:
+// atomics cannot race here, and lanes do not run in lock-step between
+// barriers.
+//
+// Built as a shared library named libcuda.so together with the kernels
+// compiled as C++ (kernel_shim.h); `cuModuleLoadData` ignores the PTX but
+// for its precision marker (the `dm_precision_float` / `_double` entry)
+// and finds each kernel by name.
+#include "kernel_shim.h"
+
+#include <sys/mman.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <mutex>
+#include <string>
+#include <vector>
+
+typedef int CUresult;
+typedef int CUdevice;
+typedef unsigned long long CUdeviceptr;
+typedef void* CUcontext;
+typedef void* CUstream;
+typedef void* CUevent;
+typedef void* CUmodule;
+typedef void* CUfunction;
+
+namespace {
+
+const CUresult SUCCESS = 0;
+const CUresult INVALID_VALUE = 1;
+const CUresult NOT_FOUND = 500;
+const CUresult LAUNCH_FAILED = 719;
+
+using Run = void (*)(void**);
+
+struct Kernel {
+    std::string precision, name;
+    Run run;
+};
+
+struct Module {
+    std::string precision;
+};
+
+std::map<std::pair<std::string, std::string>, Kernel>& registry() {
+    static std::map<std::pair<std::string, std::string>, Kernel> kernels;
+    return kernels;
+}
+
+// Launches and copies from several host threads take turns.
+std::recursive_mutex& device_lock() {
+    static std::recursive_mutex lock;
+    return lock;
+}
+
+// ---- fibers --------------------------------------------------------------
+//
+// Each thread of a block is a fiber: a stack of its own and the callee-saved
+// registers, switched without a system call. A fiber runs its thread's
+// kernel to the end (or to a barrier), is parked when the thread ends, and
+// runs the same thread index of the next block.
+
+enum State { READY, AT_BLOCK_BARRIER, AT_WARP_BARRIER, DONE };
+
+const size_t STACK_BYTES = 256 * 1024;
+const int MAX_THREADS = 1024;
+
+struct Fiber {
+    void* saved_sp = nullptr;
+    char* stack = nullptr;
+    State state = DONE;
+    dm_emu::ThreadContext indices;
+};
+
+struct Block {
+    std::vector<Fiber> fibers;
+    void* scheduler_sp = nullptr;
+    Fiber* current = nullptr;
+    const Kernel* kernel = nullptr;
+    void** params = nullptr;
+    uint64_t slots[MAX_THREADS];
+    bool filled[MAX_THREADS];
+};
+
+Block& block() {
+    static Block b;
+    return b;
+}
+
+}  // namespace
+
+// Saves the callee-saved registers on the current stack, stores the stack
+// pointer in *from, and resumes the stack `to` where it was saved (System V
+// x86-64).
+extern "C" void dm_emu_switch(void** from, void* to);
+asm(R"(
+.text
+.globl dm_emu_switch
+.type dm_emu_switch,@function
+dm_emu_switch:
+    pushq %rbp
+    pushq %rbx
+    pushq %r12
+    pushq %r13
+    pushq %r14
+    pushq %r15
+    movq %rsp, (%rdi)
+    movq %rsi, %rsp
+    popq %r15
+    popq %r14
+    popq %r13
+    popq %r12
+    popq %rbx
+    popq %rbp
+    ret
+.size dm_emu_switch, .-dm_emu_switch
+)");
+
+namespace {
+
+void to_scheduler(Fiber* me) {
+    dm_emu_switch(&me->saved_sp, block().scheduler_sp);
+}
+
+[[noreturn]] void fiber_main() {
+    for (;;) {
+        Block& b = block();
+        Fiber* me = b.current;
+        b.kernel->run(b.params);
+        me->state = DONE;
+        to_scheduler(me);
+    }
+}
+
+// A fresh stack whose first switch enters fiber_main with the alignment
+// of a call (rsp ≡ 8 mod 16 at entry).
+void start_stack(Fiber& f) {
+    uintptr_t top = ((uintptr_t)(f.stack + STACK_BYTES)) & ~(uintptr_t)15;
+    void** sp = (void**)(top - 16);
+    *sp = (void*)&fiber_main;
+    for (int r = 0; r < 6; ++r) *--sp = nullptr;
+    f.saved_sp = sp;
+}
+
+void wait(State state) {
+    Fiber* me = block().current;
+    me->state = state;
+    to_scheduler(me);
+}
+
+bool run_block(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::uint3 threads,
+               dm_emu::uint3 index) {
+    Block& b = block();
+    const int count = (int)(threads.x * threads.y * threads.z);
+    if (count > MAX_THREADS) {
+        std::fprintf(stderr, "cuda emulator: %s: %d threads in a block (at most %d)\n",
+                     kernel.name.c_str(), count, MAX_THREADS);
+        return false;
+    }
+    while ((int)b.fibers.size() < count) {
+        b.fibers.emplace_back();
+        Fiber& f = b.fibers.back();
+        void* memory = mmap(nullptr, STACK_BYTES, PROT_READ | PROT_WRITE,
+                            MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+        if (memory == MAP_FAILED) return false;
+        f.stack = static_cast<char*>(memory);
+        start_stack(f);
+    }
+    b.kernel = &kernel;
+    b.params = params;
+    for (int i = 0; i < count; ++i) {
+        Fiber& f = b.fibers[i];
+        f.indices.thread = {(unsigned)(i % threads.x), (unsigned)((i / threads.x) % threads.y),
+                            (unsigned)(i / (threads.x * threads.y))};
+        f.indices.block = index;
+        f.indices.block_dim = threads;
+        f.indices.grid_dim = grid;
+        f.indices.lane = (unsigned)(i % 32);
+        f.indices.warp = (unsigned)(i / 32);
+        f.state = READY;
+        b.filled[i] = false;
+    }
+    for (;;) {
+        bool progressed = false;
+        for (int i = 0; i < count; ++i) {
+            Fiber& f = b.fibers[i];
+            if (f.state != READY) continue;
+            b.current = &f;
+            dm_emu_switch(&b.scheduler_sp, f.saved_sp);
+            progressed = true;
+        }
+        bool live = false, all_at_block_barrier = true;
+        for (int i = 0; i < count; ++i) {
+            if (b.fibers[i].state == DONE) continue;
+            live = true;
+            if (b.fibers[i].state != AT_BLOCK_BARRIER) all_at_block_barrier = false;
+        }
+        if (!live) return true;
+        bool released = false;
+        if (all_at_block_barrier) {
+            for (int i = 0; i < count; ++i)
+                if (b.fibers[i].state == AT_BLOCK_BARRIER) b.fibers[i].state = READY;
+            released = true;
+        }
+        for (int w = 0; w * 32 < count; ++w) {
+            bool waiting = false, all = true;
+            for (int i = w * 32; i < std::min(count, (w + 1) * 32); ++i) {
+                State s = b.fibers[i].state;
+                if (s == DONE) continue;
+                if (s == AT_WARP_BARRIER) waiting = true;
+                else all = false;
+            }
+            if (waiting && all) {
+                for (int i = w * 32; i < std::min(count, (w + 1) * 32); ++i)
+                    if (b.fibers[i].state == AT_WARP_BARRIER) b.fibers[i].state = READY;
+                released = true;
+            }
+        }
+        if (!progressed && !released) {
+            std::fprintf(stderr,
+                         "cuda emulator: %s block (%u, %u, %u): threads wait at barriers that "
+                         "can never be passed\n",
+                         kernel.name.c_str(), index.x, index.y, index.z);
+            // The waiting fibers stay suspended mid-kernel: start them afresh.
+            for (Fiber& f : b.fibers) start_stack(f);
+            return false;
+        }
+    }
+}
+
+}  // namespace
+
+namespace dm_emu {
+
+const ThreadContext& context() { return block().current->indices; }
+
+void syncthreads() { wait(AT_BLOCK_BARRIER); }
+
+uint64_t warp_exchange(uint64_t bits, int source) {
+    Block& b = block();
+    const int me = (int)(b.current - b.fibers.data());
+    const int warp_first = me - (int)b.current->indices.lane;
+    b.slots[me] = bits;
+    b.filled[me] = true;
+    wait(AT_WARP_BARRIER);
+    const int from = warp_first + source;
+    uint64_t result = bits;
+    if (source >= 0 && source < 32 && from < (int)b.fibers.size() && b.filled[from])
+        result = b.slots[from];
+    wait(AT_WARP_BARRIER);
+    b.filled[me] = false;
+    return result;
+}
+
+unsigned warp_ballot(bool flag) {
+    Block& b = block();
+    const int me = (int)(b.current - b.fibers.data());
+    const int warp_first = me - (int)b.current->indices.lane;
+    b.slots[me] = flag;
+    b.filled[me] = true;
+    wait(AT_WARP_BARRIER);
+    unsigned bits = 0;
+    for (int lane = 0; lane < 32 && warp_first + lane < (int)b.fibers.size(); ++lane)
+        if (b.filled[warp_first + lane] && b.slots[warp_first + lane]) bits |= 1u << lane;
+    wait(AT_WARP_BARRIER);
+    b.filled[me] = false;
+    return bits;
+}
+
+}  // namespace dm_emu
+
+extern "C" void dm_emu_register(const char* precision, const char* name, void (*run)(void**)) {
+    registry()[{precision, name}] = Kernel{precision, name, run};
+}
+
+// ---- the driver API ------------------------------------------------------
+
+#define EXPORT extern "C" __attribute__((visibility("default")))
+
+EXPORT CUresult cuInit(unsigned) { return SUCCESS; }
+EXPORT CUresult cuDriverGetVersion(int* version) { *version = 13000; return SUCCESS; }
+EXPORT CUresult cuDeviceGetCount(int* count) { *count = 1; return SUCCESS; }
+EXPORT CUresult cuDeviceGet(CUdevice* device, int ordinal) {
+    if (ordinal != 0) return INVALID_VALUE;
+    *device = 0;
+    return SUCCESS;
+}
+EXPORT CUresult cuDeviceGetAttribute(int* value, int attribute, CUdevice) {
+    switch (attribute) {
+        case 75: *value = 9; break;   // compute capability major
+        case 76: *value = 0; break;   // minor
+        case 10: *value = 32; break;  // warp size
+        case 1: *value = 1024; break; // threads per block
+        case 16: *value = 1; break;   // multiprocessors
+        default: *value = 0;          // memory pools and the rest: absent
+    }
+    return SUCCESS;
+}
+EXPORT CUresult cuDeviceGetName(char* name, int length, CUdevice) {
+    std::snprintf(name, (size_t)length, "CUDA emulator (CPU)");
+    return SUCCESS;
+}
+EXPORT CUresult cuDeviceTotalMem_v2(size_t* bytes, CUdevice) { *bytes = (size_t)8 << 30; return SUCCESS; }
+EXPORT CUresult cuMemGetInfo_v2(size_t* free, size_t* total) {
+    *free = *total = (size_t)8 << 30;
+    return SUCCESS;
+}
+static int the_context;
+EXPORT CUresult cuDevicePrimaryCtxRetain(CUcontext* context, CUdevice) { *context = &the_context; return SUCCESS; }
+EXPORT CUresult cuDevicePrimaryCtxRelease_v2(CUdevice) { return SUCCESS; }
+EXPORT CUresult cuCtxSetCurrent(CUcontext) { return SUCCESS; }
+EXPORT CUresult cuCtxGetCurrent(CUcontext* context) { *context = &the_context; return SUCCESS; }
+EXPORT CUresult cuCtxSynchronize() { return SUCCESS; }
+EXPORT CUresult cuCtxGetStreamPriorityRange(int* least, int* greatest) { *least = *greatest = 0; return SUCCESS; }
+
+EXPORT CUresult cuStreamCreate(CUstream* stream, unsigned) { *stream = new int(0); return SUCCESS; }
+EXPORT CUresult cuStreamCreateWithPriority(CUstream* stream, unsigned, int) { *stream = new int(0); return SUCCESS; }
+EXPORT CUresult cuStreamDestroy_v2(CUstream stream) { delete static_cast<int*>(stream); return SUCCESS; }
+EXPORT CUresult cuStreamSynchronize(CUstream) { return SUCCESS; }
+EXPORT CUresult cuStreamWaitEvent(CUstream, CUevent, unsigned) { return SUCCESS; }
+EXPORT CUresult cuStreamQuery(CUstream) { return SUCCESS; }
+
+EXPORT CUresult cuEventCreate(CUevent* event, unsigned) { *event = new int(0); return SUCCESS; }
+EXPORT CUresult cuEventDestroy_v2(CUevent event) { delete static_cast<int*>(event); return SUCCESS; }
+EXPORT CUresult cuEventRecord(CUevent, CUstream) { return SUCCESS; }
+EXPORT CUresult cuEventQuery(CUevent) { return SUCCESS; }
+EXPORT CUresult cuEventSynchronize(CUevent) { return SUCCESS; }
+EXPORT CUresult cuEventElapsedTime(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
+EXPORT CUresult cuEventElapsedTime_v2(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
+
+static CUresult allocate(CUdeviceptr* pointer, size_t bytes) {
+    // Device allocations are 256-byte aligned; a zero-byte one still gets
+    // an address of its own.
+    void* memory = std::aligned_alloc(256, ((bytes + 255) / 256) * 256 + 256);
+    if (!memory) return 2;  // CUDA_ERROR_OUT_OF_MEMORY
+    *pointer = (CUdeviceptr)memory;
+    return SUCCESS;
+}
+EXPORT CUresult cuMemAlloc_v2(CUdeviceptr* pointer, size_t bytes) { return allocate(pointer, bytes); }
+EXPORT CUresult cuMemAllocAsync(CUdeviceptr* pointer, size_t bytes, CUstream) { return allocate(pointer, bytes); }
+EXPORT CUresult cuMemFree_v2(CUdeviceptr pointer) { std::free((void*)pointer); return SUCCESS; }
+EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream) { std::free((void*)pointer); return SUCCESS; }
+EXPORT CUresult cuMemsetD8_v2(CUdeviceptr to, unsigned char value, size_t n) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
+    std::memset((void*)to, value, n);
+    return SUCCESS;
+}
+EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, CUstream) {
+    return cuMemsetD8_v2(to, value, n);
+}
+EXPORT CUresult cuMemcpyHtoD_v2(CUdeviceptr to, const void* from, size_t n) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
+    std::memcpy((void*)to, from, n);
+    return SUCCESS;
+}
+EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n, CUstream) {
+    return cuMemcpyHtoD_v2(to, from, n);
+}
+EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
+    std::memcpy(to, (const void*)from, n);
+    return SUCCESS;
+}
+EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstream) {
+    return cuMemcpyDtoH_v2(to, from, n);
+}
+EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
+    std::memmove((void*)to, (const void*)from, n);
+    return SUCCESS;
+}
+EXPORT CUresult cuMemcpyDtoDAsync_v2(CUdeviceptr to, CUdeviceptr from, size_t n, CUstream) {
+    return cuMemcpyDtoD_v2(to, from, n);
+}
+
+EXPORT CUresult cuModuleLoadData(CUmodule* module, const void* image) {
+    const char* ptx = static_cast<const char*>(image);
+    std::string precision;
+    if (std::strstr(ptx, "dm_precision_float")) precision = "float";
+    else if (std::strstr(ptx, "dm_precision_double")) precision = "double";
+    else {
+        std::fprintf(stderr, "cuda emulator: the module names no precision (dm_precision_*)\n");
+        return INVALID_VALUE;
+    }
+    *module = new Module{precision};
+    return SUCCESS;
+}
+EXPORT CUresult cuModuleUnload(CUmodule module) { delete static_cast<Module*>(module); return SUCCESS; }
+EXPORT CUresult cuModuleGetFunction(CUfunction* function, CUmodule module, const char* name) {
+    auto& kernels = registry();
+    auto found = kernels.find({static_cast<Module*>(module)->precision, name});
+    if (found == kernels.end()) {
+        std::fprintf(stderr, "cuda emulator: no kernel `%s`\n", name);
+        return NOT_FOUND;
+    }
+    *function = &found->second;
+    return SUCCESS;
+}
+EXPORT CUresult cuFuncGetAttribute(int* value, int, CUfunction) { *value = 0; return SUCCESS; }
+EXPORT CUresult cuFuncSetAttribute(CUfunction, int, int) { return SUCCESS; }
+EXPORT CUresult cuFuncSetCacheConfig(CUfunction, int) { return SUCCESS; }
+
+EXPORT CUresult cuLaunchKernel(CUfunction function, unsigned gx, unsigned gy, unsigned gz,
+                               unsigned bx, unsigned by, unsigned bz, unsigned, CUstream,
+                               void** params, void**) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
+    const Kernel& kernel = *static_cast<const Kernel*>(function);
+    const dm_emu::uint3 grid{gx, gy, gz}, threads{bx, by, bz};
+    for (unsigned z = 0; z < gz; ++z)
+        for (unsigned y = 0; y < gy; ++y)
+            for (unsigned x = 0; x < gx; ++x)
+                if (!run_block(kernel, params, grid, threads, {x, y, z})) return LAUNCH_FAILED;
+    return SUCCESS;
+}
+
+EXPORT CUresult cuGetErrorName(CUresult error, const char** name) {
+    static thread_local char text[32];
+    std::snprintf(text, sizeof text, "CUDA_ERROR_%d", error);
+    *name = text;
+    return SUCCESS;
+}
+EXPORT CUresult cuGetErrorString(CUresult error, const char** text) { return cuGetErrorName(error, text); }

@@ -1,0 +1,102 @@
+//! The CUDA backend's kernels and the host code that launches them, run
+//! without a GPU: `crates/dm-cuda/emulator` builds a libcuda.so that executes
+//! the kernels (compiled as C++) on the CPU, and `dm-bench cuda-parity`
+//! runs under it, comparing the CUDA world and the residual network on the
+//! "device" with the CPU path. This checks what the kernels compute, not
+//! the GPU's concurrency (docs/gpu.md, "Checks").
+
+use dm_cuda::Precision;
+use dm_cuda::kernels::{ENTRY_POINTS, RESIDUAL_ENTRY_POINTS, source};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The kernels of both precisions as one C++ unit, each in a namespace of
+/// its own, registered with the emulator by name.
+fn emulated_unit() -> String {
+    let mut unit = String::from("#include \"kernel_shim.h\"\n");
+    let precisions = [(Precision::F32, "float"), (Precision::F64, "double")];
+    for (precision, name) in precisions {
+        // C linkage would give both precisions' kernels one symbol.
+        let kernels = source(precision).replace("extern \"C\" __global__", "__global__");
+        unit.push_str(&format!(
+            "#undef REAL\nnamespace dm_{name} {{\nDM_EMU_BUILTINS\n{kernels}\n}}\n"
+        ));
+    }
+    unit.push_str("namespace {\nstruct Registration {\n    Registration() {\n");
+    for (_, name) in precisions {
+        for entry in ENTRY_POINTS.iter().chain(&RESIDUAL_ENTRY_POINTS) {
+            unit.push_str(&format!(
+                "        dm_emu_register(\"{name}\", \"{entry}\", &dm_emu::Thunk<&dm_{name}::{entry}>::run);\n"
+            ));
+        }
+    }
+    unit.push_str("    }\n} registration;\n}\n");
+    unit
+}
+
+/// Builds the emulator into `dir` with the first C++ compiler found.
+fn build_emulator(dir: &Path) -> PathBuf {
+    let sources = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../crates/dm-cuda/emulator");
+    std::fs::create_dir_all(dir).expect("emulator folder");
+    let unit = dir.join("kernels.cc");
+    std::fs::write(&unit, emulated_unit()).expect("writing the kernels' unit");
+    let library = dir.join("libcuda.so");
+    let compilers = std::env::var("CXX")
+        .map(|c| vec![c])
+        .unwrap_or_else(|_| vec!["c++".into(), "clang++".into()]);
+    for compiler in &compilers {
+        let Ok(output) = Command::new(compiler)
+            .args([
+                "-std=c++17",
+                "-O1",
+                "-fPIC",
+                "-shared",
+                "-Wl,-soname,libcuda.so",
+            ])
+            .arg("-I")
+            .arg(&sources)
+            .arg(sources.join("driver.cc"))
+            .arg(&unit)
+            .arg("-o")
+            .arg(&library)
+            .output()
+        else {
+            continue;
+        };
+        assert!(
+            output.status.success(),
+            "{compiler} could not build the CUDA emulator:\n{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        return library;
+    }
+    panic!("no C++ compiler found (tried {compilers:?}); set CXX");
+}
+
+#[test]
+fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
+    let library = build_emulator(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"));
+    let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
+        .args(["cuda-parity", "--particles", "400", "--frames", "2"])
+        .env("LD_PRELOAD", &library)
+        .output()
+        .expect("running dm-bench cuda-parity");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        output.status.success(),
+        "cuda-parity under the emulator failed:\n{stdout}\n{stderr}"
+    );
+    assert!(
+        stdout.contains("CUDA emulator (CPU)"),
+        "the parity ran on another device:\n{stdout}"
+    );
+    for kind in ["Pgnd", "Mlp"] {
+        for precision in ["f32", "f64"] {
+            assert!(
+                stdout.contains(&format!("residual {kind} {precision} gradients")),
+                "no residual {kind} {precision} check in:\n{stdout}"
+            );
+        }
+    }
+}

@@ -78,7 +78,9 @@ extern "C" __global__ void residual_spline_weights_backward(
 }
 
 // Node means' adjoint, node by node and in place: ∂L/∂(Σ w·f) = g/S, and
-// ∂L/∂S = −Σ_c g_c·mean_c / S where S is above the floor (else 0).
+// ∂L/∂S = −Σ_c g_c·mean_c / S where S is above the floor (else 0). The
+// features' adjoint, Σ_s w[p, s]·∂L/∂(Σ w·f)[node(p, s)], is
+// residual_to_particles of it.
 extern "C" __global__ void residual_node_means_backward_nodes(
     real* __restrict__ d_total, const real* __restrict__ means,
     const real* __restrict__ weight_sums, int nodes, int width, real floor,
@@ -94,24 +96,6 @@ extern "C" __global__ void residual_node_means_backward_nodes(
     for (int c = 0; c < width; ++c) along += g[c] * mean[c];
     d_sum[node] = sum > floor ? -along / divisor : (real)0;
     for (int c = 0; c < width; ++c) g[c] /= divisor;
-}
-
-// ∂L/∂f[p, c] = Σ_s w[p, s]·d_total[node(p, s), c] (one thread per
-// particle and channel).
-extern "C" __global__ void residual_node_means_backward_features(
-    const real* __restrict__ w, const int* __restrict__ node_of, const real* __restrict__ d_total,
-    int width, int n, real* __restrict__ d_features)
-{
-    long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
-    if (i >= (long long)n * width) return;
-    const long long p = i / width;
-    const int c = (int)(i % width);
-    real acc = (real)0;
-    for (int s = 0; s < RESIDUAL_STENCIL; ++s) {
-        const long long slot = p * RESIDUAL_STENCIL + s;
-        acc += w[slot] * d_total[(long long)node_of[slot] * width + c];
-    }
-    d_features[i] = acc;
 }
 
 // ∂L/∂w[p, s] += Σ_c f[p, c]·d_total[node, c] + ∂L/∂S[node] (one thread

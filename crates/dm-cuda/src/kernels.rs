@@ -82,7 +82,7 @@ pub const ENTRY_POINTS: [&str; 15] = [
 ];
 
 /// The residual network's entry points.
-pub const RESIDUAL_ENTRY_POINTS: [&str; 27] = [
+pub const RESIDUAL_ENTRY_POINTS: [&str; 26] = [
     "residual_gemm",
     "residual_fill_rows",
     "residual_relu",
@@ -106,7 +106,6 @@ pub const RESIDUAL_ENTRY_POINTS: [&str; 27] = [
     "residual_pooled_backward",
     "residual_spline_weights_backward",
     "residual_node_means_backward_nodes",
-    "residual_node_means_backward_features",
     "residual_node_means_backward_weights",
     "residual_to_particles_backward",
     "residual_bound_backward",

@@ -152,6 +152,19 @@ struct Ops<'a> {
     functions: &'a HashMap<&'static str, CudaFunction>,
 }
 
+/// Launches kernel `$name` over `$config` with `$args` (references to
+/// locals and buffers) in the kernel's parameter order.
+macro_rules! launch {
+    ($ops:expr, $name:literal, $config:expr, [$($arg:expr),* $(,)?]) => {{
+        let mut builder = $ops.stream.launch_builder($ops.function($name));
+        $(builder.arg($arg);)*
+        // SAFETY: each call lists the arguments in the order and of the
+        // types of the kernel's signature (kernels/residual*.cu, sort.cu),
+        // and its launch shape covers only what its buffers hold.
+        unsafe { builder.launch($config) }.map(drop).map_err(CudaError::from)
+    }};
+}
+
 /// Launch shape of `blocks` blocks of GEMM_THREADS.
 fn blocks_of(grid: (u32, u32, u32), threads: u32) -> LaunchConfig {
     LaunchConfig {
@@ -612,29 +625,31 @@ impl Ops<'_> {
             count_i32(k, "terms")?,
         );
         let (ldc, accumulate_i, k_slice_i) = (ldc as i64, accumulate as i32, k_slice as i32);
-        let mut launch = self.stream.launch_builder(self.function("residual_gemm"));
-        launch
-            .arg(&m_i)
-            .arg(&n_i)
-            .arg(&k_i)
-            .arg(&a.data)
-            .arg(&a.rows)
-            .arg(&a.columns)
-            .arg(&b.data)
-            .arg(&b.rows)
-            .arg(&b.columns)
-            .arg(c)
-            .arg(&ldc)
-            .arg(&accumulate_i)
-            .arg(&k_slice_i);
         let grid = (
             n.div_ceil(GEMM_TILE) as u32,
             m.div_ceil(GEMM_TILE) as u32,
             slices as u32,
         );
-        // SAFETY: the arguments match residual_gemm's signature; the
-        // operands' strides and shapes stay inside their buffers.
-        unsafe { launch.launch(blocks_of(grid, GEMM_THREADS)) }?;
+        launch!(
+            self,
+            "residual_gemm",
+            blocks_of(grid, GEMM_THREADS),
+            [
+                &m_i,
+                &n_i,
+                &k_i,
+                &a.data,
+                &a.rows,
+                &a.columns,
+                &b.data,
+                &b.rows,
+                &b.columns,
+                c,
+                &ldc,
+                &accumulate_i,
+                &k_slice_i
+            ]
+        )?;
         Ok(())
     }
 
@@ -654,12 +669,12 @@ impl Ops<'_> {
             None => weights.slice(layer.bias..layer.bias + layer.outputs),
         };
         let (rows_i, width) = (rows as i64, layer.outputs as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_fill_rows"));
-        launch.arg(&mut y).arg(&bias).arg(&rows_i).arg(&width);
-        // SAFETY: the arguments match residual_fill_rows' signature.
-        unsafe { launch.launch(launch_for(rows * layer.outputs)) }?;
+        launch!(
+            self,
+            "residual_fill_rows",
+            launch_for(rows * layer.outputs),
+            [&mut y, &bias, &rows_i, &width]
+        )?;
         let mut column = 0;
         for (x, width) in blocks {
             let w = weights.slice(layer.weight + column..);
@@ -750,10 +765,7 @@ impl Ops<'_> {
     fn relu<T: DeviceReal>(&self, y: &mut CudaSlice<T>) -> Result<(), CudaError> {
         let count = y.len();
         let count_i = count as i64;
-        let mut launch = self.stream.launch_builder(self.function("residual_relu"));
-        launch.arg(y).arg(&count_i);
-        // SAFETY: the arguments match residual_relu's signature.
-        unsafe { launch.launch(launch_for(count)) }?;
+        launch!(self, "residual_relu", launch_for(count), [y, &count_i])?;
         Ok(())
     }
 
@@ -764,12 +776,12 @@ impl Ops<'_> {
     ) -> Result<(), CudaError> {
         let count = grad.len();
         let count_i = count as i64;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_relu_backward"));
-        launch.arg(out).arg(grad).arg(&count_i);
-        // SAFETY: the arguments match residual_relu_backward's signature.
-        unsafe { launch.launch(launch_for(count)) }?;
+        launch!(
+            self,
+            "residual_relu_backward",
+            launch_for(count),
+            [out, grad, &count_i]
+        )?;
         Ok(())
     }
 
@@ -786,18 +798,12 @@ impl Ops<'_> {
         // Never read without `b`; any buffer of the type.
         let b = b.unwrap_or(a);
         let (rows_i, width_i) = (rows as i64, width as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_column_sums"));
-        launch
-            .arg(a)
-            .arg(b)
-            .arg(&has_b)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(out);
-        // SAFETY: the arguments match residual_column_sums' signature.
-        unsafe { launch.launch(launch_for(rows.div_ceil(REDUCE_ROWS) * width)) }?;
+        launch!(
+            self,
+            "residual_column_sums",
+            launch_for(rows.div_ceil(REDUCE_ROWS) * width),
+            [a, b, &has_b, &rows_i, &width_i, out]
+        )?;
         Ok(())
     }
 
@@ -825,22 +831,23 @@ impl Ops<'_> {
             }
         };
         let (rows_i, width_i, groups_i) = (rows as i64, width as i32, groups as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_group_sums"));
-        launch
-            .arg(a)
-            .arg(b)
-            .arg(&has_b)
-            .arg(centre)
-            .arg(&has_centre)
-            .arg(&count)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(&groups_i)
-            .arg(&mut sums);
-        // SAFETY: the arguments match residual_group_sums' signature.
-        unsafe { launch.launch(launch_for(rows.div_ceil(REDUCE_ROWS) * width)) }?;
+        launch!(
+            self,
+            "residual_group_sums",
+            launch_for(rows.div_ceil(REDUCE_ROWS) * width),
+            [
+                a,
+                b,
+                &has_b,
+                centre,
+                &has_centre,
+                &count,
+                &rows_i,
+                &width_i,
+                &groups_i,
+                &mut sums
+            ]
+        )?;
         Ok(sums)
     }
 
@@ -862,23 +869,24 @@ impl Ops<'_> {
         let scale = weights.slice(norm.scale..norm.scale + width);
         let shift = weights.slice(norm.shift..norm.shift + width);
         let (rows_i, width_i, groups_i) = (rows as i64, width as i32, groups as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_norm_forward"));
-        launch
-            .arg(x)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(&groups_i)
-            .arg(&sums)
-            .arg(&square_sums)
-            .arg(&count)
-            .arg(&scale)
-            .arg(&shift)
-            .arg(&mut normalised)
-            .arg(&mut y);
-        // SAFETY: the arguments match residual_norm_forward's signature.
-        unsafe { launch.launch(launch_for(rows * width)) }?;
+        launch!(
+            self,
+            "residual_norm_forward",
+            launch_for(rows * width),
+            [
+                x,
+                &rows_i,
+                &width_i,
+                &groups_i,
+                &sums,
+                &square_sums,
+                &count,
+                &scale,
+                &shift,
+                &mut normalised,
+                &mut y
+            ]
+        )?;
         Ok((
             y,
             NormTape {
@@ -920,35 +928,31 @@ impl Ops<'_> {
         let mut d = self.stream.alloc_zeros::<T>(rows * width)?;
         let scale = weights.slice(norm.scale..norm.scale + width);
         let (rows_i, width_i, groups_i) = (rows as i64, width as i32, groups as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_scale_columns"));
-        launch
-            .arg(grad)
-            .arg(&scale)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(&mut d);
-        // SAFETY: the arguments match residual_scale_columns' signature.
-        unsafe { launch.launch(launch_for(rows * width)) }?;
+        launch!(
+            self,
+            "residual_scale_columns",
+            launch_for(rows * width),
+            [grad, &scale, &rows_i, &width_i, &mut d]
+        )?;
         let d_sums = self.group_sums(&d, None, None, count, rows, width, groups)?;
         let dn_sums =
             self.group_sums(&d, Some(&tape.normalised), None, count, rows, width, groups)?;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_norm_backward"));
-        launch
-            .arg(&mut d)
-            .arg(&tape.normalised)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(&groups_i)
-            .arg(&tape.square_sums)
-            .arg(&d_sums)
-            .arg(&dn_sums)
-            .arg(&count);
-        // SAFETY: the arguments match residual_norm_backward's signature.
-        unsafe { launch.launch(launch_for(rows * width)) }?;
+        launch!(
+            self,
+            "residual_norm_backward",
+            launch_for(rows * width),
+            [
+                &mut d,
+                &tape.normalised,
+                &rows_i,
+                &width_i,
+                &groups_i,
+                &tape.square_sums,
+                &d_sums,
+                &dn_sums,
+                &count
+            ]
+        )?;
         Ok(d)
     }
 
@@ -962,18 +966,12 @@ impl Ops<'_> {
         let mut best = self.stream.alloc_zeros::<T>(width)?;
         let mut best_at = self.stream.alloc_zeros::<i32>(width)?;
         let (rows_i, width_i) = (rows as i64, width as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_column_max"));
-        launch
-            .arg(m)
-            .arg(&rows_i)
-            .arg(&width_i)
-            .arg(&mut best)
-            .arg(&mut best_at);
-        // SAFETY: the arguments match residual_column_max's signature (one
-        // block of GEMM_THREADS per column, its shared arrays' size).
-        unsafe { launch.launch(blocks_of((width as u32, 1, 1), GEMM_THREADS)) }?;
+        launch!(
+            self,
+            "residual_column_max",
+            blocks_of((width as u32, 1, 1), GEMM_THREADS),
+            [m, &rows_i, &width_i, &mut best, &mut best_at]
+        )?;
         Ok((best, best_at))
     }
 
@@ -990,19 +988,12 @@ impl Ops<'_> {
         let b = weights.slice(layer.bias..layer.bias + layer.outputs);
         let (outputs, inputs, offset_i) =
             (layer.outputs as i32, layer.inputs as i32, offset as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_pooled_bias"));
-        launch
-            .arg(&w)
-            .arg(&b)
-            .arg(pooled)
-            .arg(&outputs)
-            .arg(&inputs)
-            .arg(&offset_i)
-            .arg(&mut out);
-        // SAFETY: the arguments match residual_pooled_bias' signature.
-        unsafe { launch.launch(launch_for(layer.outputs)) }?;
+        launch!(
+            self,
+            "residual_pooled_bias",
+            launch_for(layer.outputs),
+            [&w, &b, pooled, &outputs, &inputs, &offset_i, &mut out]
+        )?;
         Ok(out)
     }
 
@@ -1029,22 +1020,22 @@ impl Ops<'_> {
             flat.slice_mut(layer.weight..layer.weight + layer.outputs * layer.inputs);
         let (outputs, inputs, offset_i) =
             (layer.outputs as i32, layer.inputs as i32, offset as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_pooled_backward"));
-        launch
-            .arg(&w)
-            .arg(&bias_grad)
-            .arg(pooled)
-            .arg(pooled_at)
-            .arg(&outputs)
-            .arg(&inputs)
-            .arg(&offset_i)
-            .arg(&mut weight_grad)
-            .arg(d_rows);
-        // SAFETY: the arguments match residual_pooled_backward's signature;
-        // `pooled_at` holds rows of `d_rows`.
-        unsafe { launch.launch(launch_for(layer.outputs * (layer.inputs - offset))) }?;
+        launch!(
+            self,
+            "residual_pooled_backward",
+            launch_for(layer.outputs * (layer.inputs - offset)),
+            [
+                &w,
+                &bias_grad,
+                pooled,
+                pooled_at,
+                &outputs,
+                &inputs,
+                &offset_i,
+                &mut weight_grad,
+                d_rows
+            ]
+        )?;
         Ok(())
     }
 
@@ -1082,63 +1073,71 @@ impl Ops<'_> {
         let base = self.stream.clone_htod(&base)?;
         let n_i = n as i32;
         let mut used = self.stream.alloc_zeros::<u32>(cells)?;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_mark_nodes"));
-        launch.arg(&base).arg(&n_i);
-        for v in lo.iter().chain(&dims) {
-            launch.arg(v);
-        }
-        launch.arg(&mut used);
-        // SAFETY: the arguments match residual_mark_nodes' signature; every
-        // stencil node lies in the box (lo, dims) by construction.
-        unsafe { launch.launch(launch_for(n * STENCIL)) }?;
+        launch!(
+            self,
+            "residual_mark_nodes",
+            launch_for(n * STENCIL),
+            [
+                &base, &n_i, &lo[0], &lo[1], &lo[2], &dims[0], &dims[1], &dims[2], &mut used
+            ]
+        )?;
 
         let mut scanned = self.stream.clone_dtod(&used)?;
         let chunks = cells.div_ceil(SCAN_THREADS);
         let mut chunk_sums = self.stream.alloc_zeros::<u32>(chunks)?;
         let (cells_i, chunks_i) = (cells as i32, chunks as i32);
         let scan_block = |blocks: usize| blocks_of((blocks as u32, 1, 1), SCAN_THREADS as u32);
-        let mut launch = self.stream.launch_builder(self.function("scan_chunks"));
-        launch.arg(&mut scanned).arg(&cells_i).arg(&mut chunk_sums);
-        // SAFETY: the arguments match scan_chunks' signature (one block per chunk).
-        unsafe { launch.launch(scan_block(chunks)) }?;
-        let mut launch = self.stream.launch_builder(self.function("scan_sums"));
-        launch.arg(&mut chunk_sums).arg(&chunks_i);
-        // SAFETY: the arguments match scan_sums' signature (one block).
-        unsafe { launch.launch(scan_block(1)) }?;
+        launch!(
+            self,
+            "scan_chunks",
+            scan_block(chunks),
+            [&mut scanned, &cells_i, &mut chunk_sums]
+        )?;
+        launch!(
+            self,
+            "scan_sums",
+            scan_block(1),
+            [&mut chunk_sums, &chunks_i]
+        )?;
 
         let mut node_id = self.stream.alloc_zeros::<i32>(cells)?;
         let mut node_cell = self.stream.alloc_zeros::<i64>(cells.min(n * STENCIL))?;
         let mut count = self.stream.alloc_zeros::<i32>(1)?;
         let cells_l = cells as i64;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_number_nodes"));
-        launch
-            .arg(&used)
-            .arg(&scanned)
-            .arg(&chunk_sums)
-            .arg(&cells_l)
-            .arg(&mut node_id)
-            .arg(&mut node_cell)
-            .arg(&mut count);
-        // SAFETY: the arguments match residual_number_nodes' signature; at
-        // most n·27 cells are used.
-        unsafe { launch.launch(launch_for(cells)) }?;
+        launch!(
+            self,
+            "residual_number_nodes",
+            launch_for(cells),
+            [
+                &used,
+                &scanned,
+                &chunk_sums,
+                &cells_l,
+                &mut node_id,
+                &mut node_cell,
+                &mut count
+            ]
+        )?;
         let nodes = self.stream.clone_dtoh(&count)?[0] as usize;
 
         let mut node_of = self.stream.alloc_zeros::<i32>(n * STENCIL)?;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_stencil_slots"));
-        launch.arg(&base).arg(&n_i);
-        for v in lo.iter().chain(&dims) {
-            launch.arg(v);
-        }
-        launch.arg(&node_id).arg(&mut node_of);
-        // SAFETY: the arguments match residual_stencil_slots' signature.
-        unsafe { launch.launch(launch_for(n * STENCIL)) }?;
+        launch!(
+            self,
+            "residual_stencil_slots",
+            launch_for(n * STENCIL),
+            [
+                &base,
+                &n_i,
+                &lo[0],
+                &lo[1],
+                &lo[2],
+                &dims[0],
+                &dims[1],
+                &dims[2],
+                &node_id,
+                &mut node_of
+            ]
+        )?;
         Ok(DeviceStencil {
             base,
             node_of,
@@ -1161,20 +1160,21 @@ impl Ops<'_> {
         let n_i = n as i32;
         let origin = origin.map(T::lit);
         let dx = T::lit(dx);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_spline_weights"));
-        launch
-            .arg(x)
-            .arg(&stencil.base)
-            .arg(&n_i)
-            .arg(&origin[0])
-            .arg(&origin[1])
-            .arg(&origin[2])
-            .arg(&dx)
-            .arg(&mut w);
-        // SAFETY: the arguments match residual_spline_weights' signature.
-        unsafe { launch.launch(launch_for(n)) }?;
+        launch!(
+            self,
+            "residual_spline_weights",
+            launch_for(n),
+            [
+                x,
+                &stencil.base,
+                &n_i,
+                &origin[0],
+                &origin[1],
+                &origin[2],
+                &dx,
+                &mut w
+            ]
+        )?;
         Ok(w)
     }
 
@@ -1191,21 +1191,22 @@ impl Ops<'_> {
         let n_i = n as i32;
         let origin = origin.map(T::lit);
         let dx = T::lit(dx);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_spline_weights_backward"));
-        launch
-            .arg(x)
-            .arg(&stencil.base)
-            .arg(&n_i)
-            .arg(&origin[0])
-            .arg(&origin[1])
-            .arg(&origin[2])
-            .arg(&dx)
-            .arg(grad)
-            .arg(&mut out);
-        // SAFETY: the arguments match residual_spline_weights_backward's signature.
-        unsafe { launch.launch(launch_for(n)) }?;
+        launch!(
+            self,
+            "residual_spline_weights_backward",
+            launch_for(n),
+            [
+                x,
+                &stencil.base,
+                &n_i,
+                &origin[0],
+                &origin[1],
+                &origin[2],
+                &dx,
+                grad,
+                &mut out
+            ]
+        )?;
         Ok(out)
     }
 
@@ -1223,32 +1224,27 @@ impl Ops<'_> {
         let mut totals = self.stream.alloc_zeros::<T>(nodes * width)?;
         let mut sums = self.stream.alloc_zeros::<T>(nodes)?;
         let (width_i, n_i, nodes_i) = (width as i32, n as i32, nodes as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_sums"));
-        launch
-            .arg(features)
-            .arg(&width_i)
-            .arg(w)
-            .arg(&stencil.node_of)
-            .arg(&n_i)
-            .arg(&mut totals)
-            .arg(&mut sums);
-        // SAFETY: the arguments match residual_node_sums' signature; node
-        // ids are below `nodes`.
-        unsafe { launch.launch(launch_for(n * STENCIL * width)) }?;
+        launch!(
+            self,
+            "residual_node_sums",
+            launch_for(n * STENCIL * width),
+            [
+                features,
+                &width_i,
+                w,
+                &stencil.node_of,
+                &n_i,
+                &mut totals,
+                &mut sums
+            ]
+        )?;
         let floor = T::lit(MIN_NODE_WEIGHT);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_divide"));
-        launch
-            .arg(&mut totals)
-            .arg(&sums)
-            .arg(&nodes_i)
-            .arg(&width_i)
-            .arg(&floor);
-        // SAFETY: the arguments match residual_node_divide's signature.
-        unsafe { launch.launch(launch_for(nodes * width)) }?;
+        launch!(
+            self,
+            "residual_node_divide",
+            launch_for(nodes * width),
+            [&mut totals, &sums, &nodes_i, &width_i, &floor]
+        )?;
         Ok((totals, sums))
     }
 
@@ -1271,45 +1267,35 @@ impl Ops<'_> {
         let mut d_sum = self.stream.alloc_zeros::<T>(nodes)?;
         let (width_i, n_i, nodes_i) = (width as i32, n as i32, nodes as i32);
         let floor = T::lit(MIN_NODE_WEIGHT);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_means_backward_nodes"));
-        launch
-            .arg(&mut d_means)
-            .arg(means)
-            .arg(sums)
-            .arg(&nodes_i)
-            .arg(&width_i)
-            .arg(&floor)
-            .arg(&mut d_sum);
-        // SAFETY: the arguments match residual_node_means_backward_nodes' signature.
-        unsafe { launch.launch(launch_for(nodes)) }?;
-        let mut d_features = self.stream.alloc_zeros::<T>(n * width)?;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_means_backward_features"));
-        launch
-            .arg(w)
-            .arg(&stencil.node_of)
-            .arg(&d_means)
-            .arg(&width_i)
-            .arg(&n_i)
-            .arg(&mut d_features);
-        // SAFETY: the arguments match residual_node_means_backward_features' signature.
-        unsafe { launch.launch(launch_for(n * width)) }?;
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_means_backward_weights"));
-        launch
-            .arg(features)
-            .arg(&stencil.node_of)
-            .arg(&d_means)
-            .arg(&d_sum)
-            .arg(&width_i)
-            .arg(&n_i)
-            .arg(d_w);
-        // SAFETY: the arguments match residual_node_means_backward_weights' signature.
-        unsafe { launch.launch(launch_for(n * STENCIL)) }?;
+        launch!(
+            self,
+            "residual_node_means_backward_nodes",
+            launch_for(nodes),
+            [
+                &mut d_means,
+                means,
+                sums,
+                &nodes_i,
+                &width_i,
+                &floor,
+                &mut d_sum
+            ]
+        )?;
+        let d_features = self.to_particles(&d_means, width, w, stencil, n)?;
+        launch!(
+            self,
+            "residual_node_means_backward_weights",
+            launch_for(n * STENCIL),
+            [
+                features,
+                &stencil.node_of,
+                &d_means,
+                &d_sum,
+                &width_i,
+                &n_i,
+                d_w
+            ]
+        )?;
         Ok(d_features)
     }
 
@@ -1323,16 +1309,24 @@ impl Ops<'_> {
             .stream
             .alloc_zeros::<T>(stencil.nodes * NODE_ENCODING)?;
         let (nodes_i, bands) = (stencil.nodes as i32, FOURIER_BANDS as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_node_encoding"));
-        launch.arg(&stencil.node_cell).arg(&nodes_i);
-        for v in stencil.lo.iter().chain(&stencil.dims) {
-            launch.arg(v);
-        }
-        launch.arg(&cell_to_unit).arg(&bands).arg(&mut out);
-        // SAFETY: the arguments match residual_node_encoding's signature.
-        unsafe { launch.launch(launch_for(stencil.nodes)) }?;
+        launch!(
+            self,
+            "residual_node_encoding",
+            launch_for(stencil.nodes),
+            [
+                &stencil.node_cell,
+                &nodes_i,
+                &stencil.lo[0],
+                &stencil.lo[1],
+                &stencil.lo[2],
+                &stencil.dims[0],
+                &stencil.dims[1],
+                &stencil.dims[2],
+                &cell_to_unit,
+                &bands,
+                &mut out
+            ]
+        )?;
         Ok(out)
     }
 
@@ -1346,18 +1340,12 @@ impl Ops<'_> {
     ) -> Result<CudaSlice<T>, CudaError> {
         let mut out = self.stream.alloc_zeros::<T>(n * width)?;
         let (width_i, n_i) = (width as i32, n as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_to_particles"));
-        launch
-            .arg(node_values)
-            .arg(&width_i)
-            .arg(w)
-            .arg(&stencil.node_of)
-            .arg(&n_i)
-            .arg(&mut out);
-        // SAFETY: the arguments match residual_to_particles' signature.
-        unsafe { launch.launch(launch_for(n * width)) }?;
+        launch!(
+            self,
+            "residual_to_particles",
+            launch_for(n * width),
+            [node_values, &width_i, w, &stencil.node_of, &n_i, &mut out]
+        )?;
         Ok(out)
     }
 
@@ -1374,20 +1362,21 @@ impl Ops<'_> {
         let mut d_nodes = self.stream.alloc_zeros::<T>(stencil.nodes * width)?;
         let mut d_w = self.stream.alloc_zeros::<T>(n * STENCIL)?;
         let (width_i, n_i) = (width as i32, n as i32);
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_to_particles_backward"));
-        launch
-            .arg(node_values)
-            .arg(&width_i)
-            .arg(w)
-            .arg(&stencil.node_of)
-            .arg(grad)
-            .arg(&n_i)
-            .arg(&mut d_nodes)
-            .arg(&mut d_w);
-        // SAFETY: the arguments match residual_to_particles_backward's signature.
-        unsafe { launch.launch(launch_for(n * STENCIL)) }?;
+        launch!(
+            self,
+            "residual_to_particles_backward",
+            launch_for(n * STENCIL),
+            [
+                node_values,
+                &width_i,
+                w,
+                &stencil.node_of,
+                grad,
+                &n_i,
+                &mut d_nodes,
+                &mut d_w
+            ]
+        )?;
         Ok((d_nodes, d_w))
     }
 
@@ -1399,10 +1388,12 @@ impl Ops<'_> {
     ) -> Result<CudaSlice<T>, CudaError> {
         let mut out = self.stream.alloc_zeros::<T>(3 * rows)?;
         let (rows_i, alpha, k) = (rows as i32, T::lit(alpha), T::lit(OUTPUT_SCALE));
-        let mut launch = self.stream.launch_builder(self.function("residual_bound"));
-        launch.arg(y).arg(&rows_i).arg(&alpha).arg(&k).arg(&mut out);
-        // SAFETY: the arguments match residual_bound's signature.
-        unsafe { launch.launch(launch_for(rows)) }?;
+        launch!(
+            self,
+            "residual_bound",
+            launch_for(rows),
+            [y, &rows_i, &alpha, &k, &mut out]
+        )?;
         Ok(out)
     }
 
@@ -1415,18 +1406,12 @@ impl Ops<'_> {
     ) -> Result<CudaSlice<T>, CudaError> {
         let mut out = self.stream.alloc_zeros::<T>(3 * rows)?;
         let (rows_i, alpha, k) = (rows as i32, T::lit(alpha), T::lit(OUTPUT_SCALE));
-        let mut launch = self
-            .stream
-            .launch_builder(self.function("residual_bound_backward"));
-        launch
-            .arg(y)
-            .arg(grad)
-            .arg(&rows_i)
-            .arg(&alpha)
-            .arg(&k)
-            .arg(&mut out);
-        // SAFETY: the arguments match residual_bound_backward's signature.
-        unsafe { launch.launch(launch_for(rows)) }?;
+        launch!(
+            self,
+            "residual_bound_backward",
+            launch_for(rows),
+            [y, grad, &rows_i, &alpha, &k, &mut out]
+        )?;
         Ok(out)
     }
 }

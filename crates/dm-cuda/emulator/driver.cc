@@ -84,6 +84,7 @@ struct Block {
     std::vector<Fiber> fibers;
     void* scheduler_sp = nullptr;
     Fiber* current = nullptr;
+    int count = 0;  // threads of the running block
     const Kernel* kernel = nullptr;
     void** params = nullptr;
     uint64_t slots[MAX_THREADS];
@@ -99,10 +100,11 @@ Block& block() {
 
 // Saves the callee-saved registers on the current stack, stores the stack
 // pointer in *from, and resumes the stack `to` where it was saved (System V
-// x86-64).
+// x86-64). MXCSR and the x87 control word are callee-saved too but left
+// out: neither the kernels nor the scheduler change them.
 extern "C" void dm_emu_switch(void** from, void* to);
 asm(R"(
-.text
+.pushsection .text
 .globl dm_emu_switch
 .type dm_emu_switch,@function
 dm_emu_switch:
@@ -122,6 +124,7 @@ dm_emu_switch:
     popq %rbp
     ret
 .size dm_emu_switch, .-dm_emu_switch
+.popsection
 )");
 
 namespace {
@@ -176,6 +179,7 @@ bool run_block(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::
     }
     b.kernel = &kernel;
     b.params = params;
+    b.count = count;
     for (int i = 0; i < count; ++i) {
         Fiber& f = b.fibers[i];
         f.indices.thread = {(unsigned)(i % threads.x), (unsigned)((i / threads.x) % threads.y),
@@ -253,7 +257,7 @@ uint64_t warp_exchange(uint64_t bits, int source) {
     wait(AT_WARP_BARRIER);
     const int from = warp_first + source;
     uint64_t result = bits;
-    if (source >= 0 && source < 32 && from < (int)b.fibers.size() && b.filled[from])
+    if (source >= 0 && source < 32 && from < b.count && b.filled[from])
         result = b.slots[from];
     wait(AT_WARP_BARRIER);
     b.filled[me] = false;
@@ -268,7 +272,7 @@ unsigned warp_ballot(bool flag) {
     b.filled[me] = true;
     wait(AT_WARP_BARRIER);
     unsigned bits = 0;
-    for (int lane = 0; lane < 32 && warp_first + lane < (int)b.fibers.size(); ++lane)
+    for (int lane = 0; lane < 32 && warp_first + lane < b.count; ++lane)
         if (b.filled[warp_first + lane] && b.slots[warp_first + lane]) bits |= 1u << lane;
     wait(AT_WARP_BARRIER);
     b.filled[me] = false;
@@ -337,10 +341,13 @@ EXPORT CUresult cuEventElapsedTime(float* ms, CUevent, CUevent) { *ms = 0; retur
 EXPORT CUresult cuEventElapsedTime_v2(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
 
 static CUresult allocate(CUdeviceptr* pointer, size_t bytes) {
-    // Device allocations are 256-byte aligned; a zero-byte one still gets
-    // an address of its own.
-    void* memory = std::aligned_alloc(256, ((bytes + 255) / 256) * 256 + 256);
+    // 256-byte aligned like the device's; a zero-byte allocation still
+    // gets an address of its own. Fresh memory reads as NaN (all bits
+    // set), so a kernel reading what nobody wrote shows in the results.
+    const size_t rounded = ((bytes + 255) / 256) * 256;
+    void* memory = std::aligned_alloc(256, rounded > 0 ? rounded : 256);
     if (!memory) return 2;  // CUDA_ERROR_OUT_OF_MEMORY
+    std::memset(memory, 0xFF, rounded);
     *pointer = (CUdeviceptr)memory;
     return SUCCESS;
 }
@@ -413,6 +420,14 @@ EXPORT CUresult cuLaunchKernel(CUfunction function, unsigned gx, unsigned gy, un
                                void** params, void**) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     const Kernel& kernel = *static_cast<const Kernel*>(function);
+    // The limits of the GPUs the kernels are built for (compute 7.5+).
+    if (gx == 0 || gy == 0 || gz == 0 || gx > 2147483647u || gy > 65535 || gz > 65535 ||
+        bx == 0 || by == 0 || bz == 0 || bx > 1024 || by > 1024 || bz > 64 ||
+        bx * by * bz > 1024) {
+        std::fprintf(stderr, "cuda emulator: %s: launch shape (%u, %u, %u) x (%u, %u, %u) out of limits\n",
+                     kernel.name.c_str(), gx, gy, gz, bx, by, bz);
+        return INVALID_VALUE;
+    }
     const dm_emu::uint3 grid{gx, gy, gz}, threads{bx, by, bz};
     for (unsigned z = 0; z < gz; ++z)
         for (unsigned y = 0; y < gy; ++y)

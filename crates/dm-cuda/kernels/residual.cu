@@ -12,7 +12,7 @@
 // C[m, n] = (C[m, n] if `accumulate`) + Σ_k A(m, k)·B(k, n), with A(m, k)
 // at A[m·a_m + k·a_k] and B(k, n) at B[k·b_k + n·b_n]: any transpose of a
 // row-major operand, and a column block of one, without copying. Blocks
-// (x: N tiles, y: M tiles, z: slices of `k_slice` along K); with more than
+// (x: M tiles, y: N tiles, z: slices of `k_slice` along K); with more than
 // one slice the slices add atomically into C, which then accumulates.
 extern "C" __global__ void residual_gemm(
     int M, int N, int K,
@@ -23,7 +23,7 @@ extern "C" __global__ void residual_gemm(
     __shared__ real As[GEMM_DEPTH][GEMM_TILE + 1];
     __shared__ real Bs[GEMM_DEPTH][GEMM_TILE + 1];
     const int tx = threadIdx.x % 16, ty = threadIdx.x / 16;
-    const int m0 = blockIdx.y * GEMM_TILE, n0 = blockIdx.x * GEMM_TILE;
+    const int m0 = blockIdx.x * GEMM_TILE, n0 = blockIdx.y * GEMM_TILE;
     const int k_begin = blockIdx.z * k_slice;
     const int k_end = min(K, k_begin + k_slice);
     real acc[4][4];

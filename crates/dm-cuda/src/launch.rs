@@ -16,7 +16,12 @@ const BLOCK_THREADS: u32 = 256;
 /// Launch shape covering `count` threads.
 pub(crate) fn launch_for(count: usize) -> LaunchConfig {
     LaunchConfig {
-        grid_dim: ((count as u32).div_ceil(BLOCK_THREADS).max(1), 1, 1),
+        // Blocks counted before narrowing: `count` itself may pass u32.
+        grid_dim: (
+            u32::try_from(count.div_ceil(BLOCK_THREADS as usize).max(1)).unwrap_or(u32::MAX),
+            1,
+            1,
+        ),
         block_dim: (BLOCK_THREADS, 1, 1),
         shared_mem_bytes: 0,
     }

@@ -34,8 +34,8 @@ const GEMM_THREADS: u32 = 256;
 const REDUCE_ROWS: usize = 256;
 /// sort.cu's SCAN_THREADS.
 const SCAN_THREADS: usize = 1024;
-/// The largest box of cells the nodes are numbered in (512 MiB of
-/// counters and ids).
+/// The largest box of cells the nodes are numbered in (12 bytes a cell:
+/// marks, their scan and node ids, 768 MiB at most).
 const MAX_STENCIL_CELLS: usize = 1 << 26;
 /// The MPM module's entry points the residual uses too (the scan).
 const SCAN_ENTRY_POINTS: [&str; 2] = ["scan_chunks", "scan_sums"];
@@ -208,7 +208,9 @@ impl<T: DeviceReal> CudaResidual<T> {
     /// Δv for one frame (m/s, caller's order).
     pub fn predict(&self, inputs: &FrameInputs) -> Result<Vec<[f64; 3]>, CudaError> {
         self.network.check_inputs(inputs)?;
-        let ops = self.ops();
+        check_size(inputs.particle_count())?;
+        let device = self.device.with_own_stream()?;
+        let ops = self.ops(&device);
         let (dv, _) = self.forward(&ops, inputs)?;
         Ok(triples(&ops.stream.clone_dtoh(&dv)?))
     }
@@ -228,7 +230,9 @@ impl<T: DeviceReal> CudaResidual<T> {
             }
             .into());
         }
-        let ops = self.ops();
+        check_size(inputs.particle_count())?;
+        let device = self.device.with_own_stream()?;
+        let ops = self.ops(&device);
         let (_, tape) = self.forward(&ops, inputs)?;
         let grad = ops.stream.clone_htod(&flatten::<T>(grad_dv))?;
         let mut flat = ops.stream.alloc_zeros::<T>(self.parameter_count())?;
@@ -265,9 +269,12 @@ impl<T: DeviceReal> CudaResidual<T> {
         })
     }
 
-    fn ops(&self) -> Ops<'_> {
+    /// The launches on `device`'s stream: each call has a stream of its
+    /// own, so callers on several host threads (MPPI's samples) do not
+    /// wait for each other's copies.
+    fn ops<'a>(&'a self, device: &'a CudaDevice) -> Ops<'a> {
         Ops {
-            stream: self.device.stream(),
+            stream: device.stream(),
             functions: &self.functions,
         }
     }
@@ -577,6 +584,21 @@ fn triples<T: DeviceReal>(values: &[T]) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// Refuses particle counts whose stencil slots (27 a particle) the
+/// kernels' int indices cannot number.
+fn check_size(particles: usize) -> Result<(), CudaError> {
+    if particles
+        .checked_mul(STENCIL)
+        .is_none_or(|slots| slots > i32::MAX as usize)
+    {
+        return Err(CudaError::Unsupported(format!(
+            "{particles} particles: the GPU residual takes at most {}",
+            i32::MAX as usize / STENCIL
+        )));
+    }
+    Ok(())
+}
+
 fn count_i32(count: usize, what: &str) -> Result<i32, CudaError> {
     i32::try_from(count).map_err(|_| {
         CudaError::Unsupported(format!(
@@ -625,9 +647,11 @@ impl Ops<'_> {
             count_i32(k, "terms")?,
         );
         let (ldc, accumulate_i, k_slice_i) = (ldc as i64, accumulate as i32, k_slice as i32);
+        // M (rows, up to millions) on x, whose limit is 2³¹ − 1 blocks; N (a
+        // layer's width) on y.
         let grid = (
-            n.div_ceil(GEMM_TILE) as u32,
             m.div_ceil(GEMM_TILE) as u32,
+            n.div_ceil(GEMM_TILE) as u32,
             slices as u32,
         );
         launch!(
@@ -1061,7 +1085,10 @@ impl Ops<'_> {
             }
         }
         let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1) as usize);
-        let cells = dims.iter().product::<usize>();
+        let cells = dims
+            .iter()
+            .try_fold(1usize, |product, d| product.checked_mul(*d))
+            .unwrap_or(usize::MAX);
         if cells > MAX_STENCIL_CELLS {
             return Err(CudaError::Unsupported(format!(
                 "the particles' stencils span {}×{}×{} grid cells; the GPU residual numbers at most {MAX_STENCIL_CELLS}",

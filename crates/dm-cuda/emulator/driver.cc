@@ -248,35 +248,38 @@ const ThreadContext& context() { return block().current->indices; }
 
 void syncthreads() { wait(AT_BLOCK_BARRIER); }
 
-uint64_t warp_exchange(uint64_t bits, int source) {
+// One round of a warp's exchange: the calling lane publishes `bits`, every
+// live lane of the warp arrives, `read(first lane's fiber index)` reads
+// what was published (`filled` marks the lanes that did), and every lane
+// leaves before the slots are reused.
+template <class Read>
+static auto warp_round(uint64_t bits, Read read) {
     Block& b = block();
     const int me = (int)(b.current - b.fibers.data());
     const int warp_first = me - (int)b.current->indices.lane;
     b.slots[me] = bits;
     b.filled[me] = true;
     wait(AT_WARP_BARRIER);
-    const int from = warp_first + source;
-    uint64_t result = bits;
-    if (source >= 0 && source < 32 && from < b.count && b.filled[from])
-        result = b.slots[from];
+    const auto result = read(b, warp_first);
     wait(AT_WARP_BARRIER);
     b.filled[me] = false;
     return result;
 }
 
+uint64_t warp_exchange(uint64_t bits, int source) {
+    return warp_round(bits, [&](const Block& b, int warp_first) {
+        const int from = warp_first + source;
+        return source >= 0 && source < 32 && from < b.count && b.filled[from] ? b.slots[from] : bits;
+    });
+}
+
 unsigned warp_ballot(bool flag) {
-    Block& b = block();
-    const int me = (int)(b.current - b.fibers.data());
-    const int warp_first = me - (int)b.current->indices.lane;
-    b.slots[me] = flag;
-    b.filled[me] = true;
-    wait(AT_WARP_BARRIER);
-    unsigned bits = 0;
-    for (int lane = 0; lane < 32 && warp_first + lane < b.count; ++lane)
-        if (b.filled[warp_first + lane] && b.slots[warp_first + lane]) bits |= 1u << lane;
-    wait(AT_WARP_BARRIER);
-    b.filled[me] = false;
-    return bits;
+    return warp_round(flag, [](const Block& b, int warp_first) {
+        unsigned bits = 0;
+        for (int lane = 0; lane < 32 && warp_first + lane < b.count; ++lane)
+            if (b.filled[warp_first + lane] && b.slots[warp_first + lane]) bits |= 1u << lane;
+        return bits;
+    });
 }
 
 }  // namespace dm_emu

@@ -9,6 +9,23 @@
 #define REDUCE_ROWS 256
 #define RESIDUAL_STENCIL 27
 
+// tile[kk][i] = X[(first + i)·along + (k0 + kk)·across] for a GEMM_DEPTH ×
+// GEMM_TILE tile of the operand X (zero outside `count` and `k_end`);
+// neighbouring threads read neighbouring addresses along whichever index
+// has the unit stride.
+__device__ __forceinline__ void gemm_load_tile(
+    real tile[GEMM_DEPTH][GEMM_TILE + 1], const real* __restrict__ X, long long along,
+    long long across, int first, int count, int k0, int k_end)
+{
+    for (int l = threadIdx.x; l < GEMM_TILE * GEMM_DEPTH; l += GEMM_THREADS) {
+        int kk, ii;
+        if (across == 1) { kk = l % GEMM_DEPTH; ii = l / GEMM_DEPTH; }
+        else { ii = l % GEMM_TILE; kk = l / GEMM_TILE; }
+        const int i = first + ii, k = k0 + kk;
+        tile[kk][ii] = (i < count && k < k_end) ? X[i * along + k * across] : (real)0;
+    }
+}
+
 // C[m, n] = (C[m, n] if `accumulate`) + Σ_k A(m, k)·B(k, n), with A(m, k)
 // at A[m·a_m + k·a_k] and B(k, n) at B[k·b_k + n·b_n]: any transpose of a
 // row-major operand, and a column block of one, without copying. Blocks
@@ -30,22 +47,8 @@ extern "C" __global__ void residual_gemm(
     for (int i = 0; i < 4; ++i)
         for (int j = 0; j < 4; ++j) acc[i][j] = (real)0;
     for (int k0 = k_begin; k0 < k_end; k0 += GEMM_DEPTH) {
-        // Neighbouring threads read neighbouring addresses along whichever
-        // index has the unit stride.
-        for (int l = threadIdx.x; l < GEMM_TILE * GEMM_DEPTH; l += GEMM_THREADS) {
-            int kk, mm;
-            if (a_k == 1) { kk = l % GEMM_DEPTH; mm = l / GEMM_DEPTH; }
-            else { mm = l % GEMM_TILE; kk = l / GEMM_TILE; }
-            const int m = m0 + mm, k = k0 + kk;
-            As[kk][mm] = (m < M && k < k_end) ? A[m * a_m + k * a_k] : (real)0;
-        }
-        for (int l = threadIdx.x; l < GEMM_TILE * GEMM_DEPTH; l += GEMM_THREADS) {
-            int kk, nn;
-            if (b_n == 1) { nn = l % GEMM_TILE; kk = l / GEMM_TILE; }
-            else { kk = l % GEMM_DEPTH; nn = l / GEMM_DEPTH; }
-            const int n = n0 + nn, k = k0 + kk;
-            Bs[kk][nn] = (n < N && k < k_end) ? B[k * b_k + n * b_n] : (real)0;
-        }
+        gemm_load_tile(As, A, a_m, a_k, m0, M, k0, k_end);
+        gemm_load_tile(Bs, B, b_n, b_k, n0, N, k0, k_end);
         __syncthreads();
         for (int kk = 0; kk < GEMM_DEPTH; ++kk) {
             real a[4], b[4];

@@ -101,6 +101,9 @@ struct NormTape<T> {
 /// The particles' stencils: base cells, node numbering and slot → node.
 #[derive(Debug)]
 struct DeviceStencil {
+    /// The grid the base cells are counted on.
+    origin: [f64; 3],
+    dx: f64,
     base: CudaSlice<i32>,
     node_of: CudaSlice<i32>,
     node_cell: CudaSlice<i64>,
@@ -314,8 +317,6 @@ impl<T: DeviceReal> CudaResidual<T> {
         let channels = ops.stream.clone_htod(&channels)?;
         let x_tilde = ops.stream.clone_htod(&flatten::<T>(&inputs.x_tilde))?;
         let w = &self.weights;
-        let bound =
-            |raw: &CudaSlice<T>, rows: usize| ops.bound(raw, rows, self.network.spec().alpha);
         let (dv, body) = match self.network.spec().kind {
             ResidualKind::Pgnd => {
                 let (dv, tape) = self.grid_forward(ops, inputs, &x_tilde, &channels)?;
@@ -338,7 +339,7 @@ impl<T: DeviceReal> CudaResidual<T> {
                 )?;
                 ops.relu(&mut h3)?;
                 let raw = ops.dense(w, self.layer("mlp4")?, &[(&h3, h)], n, None)?;
-                let dv = bound(&raw, n)?;
+                let dv = ops.bound(&raw, n, self.network.spec().alpha)?;
                 let tape = MlpTape {
                     hidden: [h1, h2, h3],
                     raw,
@@ -383,8 +384,7 @@ impl<T: DeviceReal> CudaResidual<T> {
 
         let stencil = ops.stencil(inputs, spec.grid_origin, spec.grid_dx)?;
         let nodes = stencil.nodes;
-        let spline_weights =
-            ops.spline_weights(x_tilde, &stencil, n, spec.grid_origin, spec.grid_dx)?;
+        let spline_weights = ops.spline_weights(x_tilde, &stencil, n)?;
         let (node_feature, weight_sums) =
             ops.node_means(&feature, e3, &spline_weights, &stencil, n)?;
         let encoding = ops.node_encoding(&stencil, spec.grid_dx / spec.domain_size)?;
@@ -522,14 +522,7 @@ impl<T: DeviceReal> CudaResidual<T> {
             n,
             &mut d_spline_weights,
         )?;
-        let d_x = ops.spline_weights_backward(
-            &tape.x_tilde,
-            &g.stencil,
-            n,
-            spec.grid_origin,
-            spec.grid_dx,
-            &d_spline_weights,
-        )?;
+        let d_x = ops.spline_weights_backward(&tape.x_tilde, &g.stencil, n, &d_spline_weights)?;
 
         // enc3 with its pooled half folded into the bias.
         let [h1, h2] = &g.encoded;
@@ -1166,6 +1159,8 @@ impl Ops<'_> {
             ]
         )?;
         Ok(DeviceStencil {
+            origin,
+            dx,
             base,
             node_of,
             node_cell,
@@ -1180,13 +1175,11 @@ impl Ops<'_> {
         x: &CudaSlice<T>,
         stencil: &DeviceStencil,
         n: usize,
-        origin: [f64; 3],
-        dx: f64,
     ) -> Result<CudaSlice<T>, CudaError> {
         let mut w = self.stream.alloc_zeros::<T>(n * STENCIL)?;
         let n_i = n as i32;
-        let origin = origin.map(T::lit);
-        let dx = T::lit(dx);
+        let origin = stencil.origin.map(T::lit);
+        let dx = T::lit(stencil.dx);
         launch!(
             self,
             "residual_spline_weights",
@@ -1210,14 +1203,12 @@ impl Ops<'_> {
         x: &CudaSlice<T>,
         stencil: &DeviceStencil,
         n: usize,
-        origin: [f64; 3],
-        dx: f64,
         grad: &CudaSlice<T>,
     ) -> Result<CudaSlice<T>, CudaError> {
         let mut out = self.stream.alloc_zeros::<T>(3 * n)?;
         let n_i = n as i32;
-        let origin = origin.map(T::lit);
-        let dx = T::lit(dx);
+        let origin = stencil.origin.map(T::lit);
+        let dx = T::lit(stencil.dx);
         launch!(
             self,
             "residual_spline_weights_backward",

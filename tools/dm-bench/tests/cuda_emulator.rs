@@ -92,6 +92,12 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
         "the parity ran on another device:\n{stdout}"
     );
     for kind in ["Pgnd", "Mlp"] {
+        assert!(
+            stdout.contains(&format!(
+                "residual {kind} f64 on the GPU, VJP against finite differences"
+            )),
+            "no finite-difference check of the {kind} residual in:\n{stdout}"
+        );
         for precision in ["f32", "f64"] {
             assert!(
                 stdout.contains(&format!("residual {kind} {precision} gradients")),

@@ -22,6 +22,11 @@ pub const ALPHA_MIN: f64 = 1.0 / 255.0;
 pub const ALPHA_MAX: f64 = 0.99;
 /// The walk stops once the transmittance would fall below this.
 pub const TRANSMITTANCE_MIN: f64 = 1e-4;
+/// Below `ln(ALPHA_MIN / o)` minus this, `o·exp(power)` is below
+/// [`ALPHA_MIN`] whatever the rounding of `exp` and `ln` (a relative
+/// 1e-3, far above f32's): such pixels are skipped without `exp`, which
+/// most pixels of a tile's splats are, and the image is unchanged.
+const POWER_FLOOR_MARGIN: f64 = 1e-3;
 
 /// Alpha of one splat at one pixel, as used by forward and backward alike.
 #[derive(Debug, Clone, Copy)]
@@ -37,16 +42,16 @@ pub(crate) struct SplatAlpha<T> {
 
 #[inline(always)]
 pub(crate) fn splat_alpha<T: Real>(
-    mean2d: &[T; 2],
-    conic: &[T; 3],
-    opacity: T,
+    splats: &TileSplats<T>,
+    k: usize,
     px: T,
     py: T,
 ) -> Option<SplatAlpha<T>> {
+    let (mean2d, conic, opacity) = (&splats.mean2d[k], &splats.conic[k], splats.opacity[k]);
     let dx = px - mean2d[0];
     let dy = py - mean2d[1];
     let power = T::lit(-0.5) * (conic[0] * dx * dx + conic[2] * dy * dy) - conic[1] * dx * dy;
-    if power > T::zero() {
+    if power > T::zero() || power < splats.power_floor[k] {
         return None;
     }
     let falloff = power.exp();
@@ -73,6 +78,8 @@ pub(crate) struct TileSplats<T> {
     pub conic: Vec<[T; 3]>,
     pub opacity: Vec<T>,
     pub color: Vec<Vector3<T>>,
+    /// Where `power` leaves a splat certainly below [`ALPHA_MIN`].
+    pub power_floor: Vec<T>,
 }
 
 impl<T: Real> TileSplats<T> {
@@ -83,6 +90,13 @@ impl<T: Real> TileSplats<T> {
             conic: ids.iter().map(|i| projected.conic[idx(i)]).collect(),
             opacity: ids.iter().map(|i| projected.opacity[idx(i)]).collect(),
             color: ids.iter().map(|i| colors[idx(i)]).collect(),
+            power_floor: ids
+                .iter()
+                .map(|i| {
+                    (T::lit(ALPHA_MIN) / projected.opacity[idx(i)]).ln()
+                        - T::lit(POWER_FLOOR_MARGIN)
+                })
+                .collect(),
         }
     }
 }
@@ -148,13 +162,7 @@ pub fn rasterize<T: Real>(
                     let mut walk_end = 0u32;
                     for k in 0..splats.mean2d.len() {
                         walk_end = k as u32 + 1;
-                        let Some(s) = splat_alpha(
-                            &splats.mean2d[k],
-                            &splats.conic[k],
-                            splats.opacity[k],
-                            px,
-                            py,
-                        ) else {
+                        let Some(s) = splat_alpha(&splats, k, px, py) else {
                             continue;
                         };
                         let next = transmittance * (T::one() - s.alpha);
@@ -195,4 +203,35 @@ pub fn rasterize<T: Real>(
         }
     }
     result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The largest value below `x`.
+    fn next_down(x: f32) -> f32 {
+        if x > 0.0 {
+            f32::from_bits(x.to_bits() - 1)
+        } else {
+            f32::from_bits(x.to_bits() + 1)
+        }
+    }
+
+    /// The early skip changes no pixel: at the largest power below the
+    /// floor, `o·exp(power)` is already below ALPHA_MIN, for opacities
+    /// from 1e-6 to 1 (f32, the renderer's precision).
+    #[test]
+    fn the_power_floor_skips_only_splats_below_the_alpha_threshold() {
+        for step in 0..=600 {
+            let opacity = 10f32.powf(-6.0 + 0.01 * step as f32);
+            let floor = (ALPHA_MIN as f32 / opacity).ln() - POWER_FLOOR_MARGIN as f32;
+            let power = next_down(floor).min(0.0);
+            let alpha = opacity * power.exp();
+            assert!(
+                alpha < ALPHA_MIN as f32,
+                "opacity {opacity}: skipped at power {power} with alpha {alpha}"
+            );
+        }
+    }
 }

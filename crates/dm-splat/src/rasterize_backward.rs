@@ -94,13 +94,7 @@ pub fn rasterize_backward<T: Real>(
                     let mut transmittance = forward.final_transmittance[p];
                     let mut behind = background;
                     for k in (0..forward.walk_end[p] as usize).rev() {
-                        let Some(s) = splat_alpha(
-                            &splats.mean2d[k],
-                            &splats.conic[k],
-                            splats.opacity[k],
-                            px,
-                            py,
-                        ) else {
+                        let Some(s) = splat_alpha(&splats, k, px, py) else {
                             continue;
                         };
                         let one_minus_alpha = T::one() - s.alpha;

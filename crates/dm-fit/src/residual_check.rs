@@ -42,16 +42,16 @@ pub struct ResidualCheck {
     pub kept: bool,
 }
 
-/// Mean Track error (m) of `model`'s open-loop rollout over the frames of
-/// the training split that the fit uses: the number `dm-eval` reports as
-/// the train split's Track.
+/// Mean Track error (m) of `model`'s open-loop rollout (MPM world on
+/// `options.device`) over the frames of the training split that the fit
+/// uses: the number `dm-eval` reports as the train split's Track.
 pub fn train_track(
     model: &WorldModel,
     bundle: &Bundle,
     options: &FitOptions,
 ) -> Result<f64, FitError> {
     let frames = fit_frames(bundle, &material_config(options, 0, Stage::Material1));
-    let rollout = model.rollout(bundle, frames, &mut |_| {})?;
+    let rollout = model.rollout_on(bundle, frames, options.device, &mut |_| {})?;
     let errors = frame_errors(&rollout, model.surface_count, &bundle.tracks);
     let train = bundle.meta.split.train;
     Ok(split_mean(&errors.track, [train[0], frames.min(train[1])]))

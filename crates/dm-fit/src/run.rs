@@ -270,6 +270,10 @@ pub struct Checkpoint {
     pub history: Vec<IterationReport>,
     pub gain_search: Vec<GainTrial>,
     pub seconds: f64,
+    /// Wall seconds per part of the fit ([`StageTimes`]), summed over
+    /// resumed runs.
+    #[serde(default)]
+    pub stage_seconds: StageTimes,
     /// The residual-only stage's best network so far (`--residual-keep
     /// late-frames`).
     #[serde(default)]
@@ -292,12 +296,35 @@ pub struct FitReport {
     /// `--residual-min-gain` dropped it), the weight count, and `check`.
     pub residual: serde_json::Value,
     pub seconds: f64,
+    /// Where the time went: `seconds` split by part, plus `report` (the
+    /// final loss and the probes, not in `seconds`).
+    pub seconds_by_stage: StageTimes,
     pub options: FitOptions,
     pub frames: usize,
     pub gain_search: Vec<GainTrial>,
 }
 
 pub const CHECKPOINT_FILE: &str = "checkpoint.json";
+
+/// Wall seconds per part of a fit, by name: the stages (`material1`,
+/// `gains`, `material2`, `residual`, `rgb`), and within them the residual
+/// check's physics-only fit (`residual_check`), stage 3's first-frame
+/// Gaussians (`appearance`) and, in the report only, `report`.
+pub type StageTimes = std::collections::BTreeMap<String, f64>;
+
+impl Stage {
+    /// The stage's name in [`StageTimes`].
+    fn timing_name(self) -> &'static str {
+        match self {
+            Stage::Material1 => "material1",
+            Stage::Gains => "gains",
+            Stage::Material2 => "material2",
+            Stage::Residual => "residual",
+            Stage::Rgb => "rgb",
+            Stage::Done => "done",
+        }
+    }
+}
 
 /// The material step's settings for `stage`: the particle damping is
 /// learnt (`--damping learnt`) only once the material has had its first
@@ -472,6 +499,7 @@ pub(crate) fn fit_stages(
             .as_ref()
             .filter(|_| run_checks_residual(options))
             .cloned(),
+        parts: Vec::new(),
         progress,
     };
     let mut state = run.start(initial)?;
@@ -488,12 +516,26 @@ pub(crate) fn fit_stages(
             });
         }
         steps += 1;
+        let stage = state.stage.timing_name();
         let clock = std::time::Instant::now();
         run.step(&mut state)?;
-        state.seconds += clock.elapsed().as_secs_f64();
+        let elapsed = clock.elapsed().as_secs_f64();
+        state.seconds += elapsed;
+        // Parts timed inside the step are charged to themselves, the rest
+        // to the step's stage.
+        let mut rest = elapsed;
+        for (part, seconds) in run.parts.drain(..) {
+            *state.stage_seconds.entry(part.into()).or_default() += seconds;
+            rest -= seconds;
+        }
+        *state.stage_seconds.entry(stage.into()).or_default() += rest;
         write_json_atomic(&checkpoint_path, &state)?;
     }
-    let report = run.final_report(&state)?;
+    let clock = std::time::Instant::now();
+    let mut report = run.final_report(&state)?;
+    report
+        .seconds_by_stage
+        .insert("report".into(), clock.elapsed().as_secs_f64());
     run.write_outputs(&state, &report)?;
     Ok(FitOutcome::Finished(Box::new(report)))
 }
@@ -517,6 +559,8 @@ struct FitRun<'a> {
     /// itself started from a given model ([`run_fit_from`]); else from the
     /// bundle's default model without a network.
     check_start: Option<WorldModel>,
+    /// Parts of the current step timed on their own ([`StageTimes`]).
+    parts: Vec<(&'static str, f64)>,
     progress: &'a mut dyn FnMut(&str),
 }
 
@@ -557,6 +601,7 @@ impl FitRun<'_> {
             history: Vec::new(),
             gain_search: Vec::new(),
             seconds: 0.0,
+            stage_seconds: StageTimes::new(),
             kept_residual: None,
             residual_check: None,
         })
@@ -685,6 +730,7 @@ impl FitRun<'_> {
                 WorldModel::from_bundle(self.bundle, &physics_only_options(self.options).model)?
             }
         };
+        let clock = std::time::Instant::now();
         let (check, physics_only) = check_residual(
             self.bundle,
             self.options,
@@ -694,7 +740,8 @@ impl FitRun<'_> {
             self.resume,
             self.progress,
         )?;
-        state.seconds += physics_only.seconds;
+        self.parts
+            .push(("residual_check", clock.elapsed().as_secs_f64()));
         if !check.kept {
             state.model = physics_only.model;
             state.adam = physics_only.adam;
@@ -726,10 +773,13 @@ impl FitRun<'_> {
         let (bundle, options) = (self.bundle, self.options);
         let (gaussians, cameras) = if state.iteration == 0 {
             (self.progress)("stage 3: fitting the first-frame Gaussians");
+            let clock = std::time::Instant::now();
             let appearance_options = AppearanceOptions::for_cameras(bundle.meta.cameras.len());
             let (gaussians, record) =
                 fit_appearance(&state.model, bundle, &appearance_options, &mut |_| {})?;
             save_appearance(self.out, &gaussians, &record)?;
+            self.parts
+                .push(("appearance", clock.elapsed().as_secs_f64()));
             (self.progress)(&format!(
                 "stage 3: {} Gaussians, frame-0 PSNR {:.1} dB (training cameras)",
                 record.gaussian_count, record.mean_train_psnr_db
@@ -782,7 +832,8 @@ impl FitRun<'_> {
         let final_loss = train_loss_on(&state.model, bundle, frames, options.device)?;
         let (youngs, poisson) = state.model.material_medians();
         (self.progress)("probing how sharply the clip pins E and ν");
-        let sensitivity = material_sensitivity(&state.model, bundle, frames, final_loss)?;
+        let sensitivity =
+            material_sensitivity(&state.model, bundle, frames, final_loss, options.device)?;
         let identifiability = if options.identifiability {
             (self.progress)("bounding how precisely the tracks determine E, ν and the gains");
             Some(identifiability_at(
@@ -823,6 +874,7 @@ impl FitRun<'_> {
                 "kept_late_loss": state.kept_residual.as_ref().map(|k| k.late_loss),
             }),
             seconds: state.seconds,
+            seconds_by_stage: state.stage_seconds.clone(),
             options: options.clone(),
             frames,
             gain_search: state.gain_search.clone(),

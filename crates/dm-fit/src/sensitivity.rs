@@ -7,9 +7,10 @@
 //! ±0.05 changes the held-out Chamfer by ≤ 0.02 mm of 4.2 (docs/RESULTS.md):
 //! ν there is whatever the optimiser's path left it at.
 
-use crate::material_fit::{FitError, train_loss};
+use crate::material_fit::{FitError, train_loss_on};
 use dm_bundle::Bundle;
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -47,19 +48,21 @@ pub fn moved_material(model: &WorldModel, youngs_factor: f64, poisson_shift: f64
     moved
 }
 
-/// Probes the four moves on the first `frames` frames; `base_loss` is
-/// the fitted model's own training loss there.
+/// Probes the four moves on the first `frames` frames with the MPM world
+/// on `device`; `base_loss` is the fitted model's own training loss there.
 pub fn material_sensitivity(
     model: &WorldModel,
     bundle: &Bundle,
     frames: usize,
     base_loss: f64,
+    device: Device,
 ) -> Result<MaterialSensitivity, FitError> {
     let relative = |youngs_factor: f64, poisson_shift: f64| -> Result<f64, FitError> {
-        let loss = train_loss(
+        let loss = train_loss_on(
             &moved_material(model, youngs_factor, poisson_shift),
             bundle,
             frames,
+            device,
         )?;
         Ok(loss / base_loss - 1.0)
     };

@@ -49,6 +49,15 @@ impl CudaDevice {
             return Err(CudaError::NoNvrtc);
         }
         let context = CudaContext::new(ordinal).map_err(|e| CudaError::NoDevice(e.to_string()))?;
+        // cudarc otherwise records an event per buffer argument of every
+        // launch and makes the stream wait on each (about 15 driver calls
+        // per launch here), which costs more host time than the launch
+        // itself at the scale of a fitted scene.
+        // SAFETY: every buffer is allocated, used and freed on one stream
+        // (a world's, a residual call's); the one exception, the residual
+        // network's weights, is read by other streams only after the
+        // stream that wrote them has been waited for (`CudaResidual`).
+        unsafe { context.disable_event_tracking() };
         let (major, minor) = context.compute_capability()?;
         let stream = context.new_stream()?;
         Ok(Arc::new(Self {

@@ -188,6 +188,8 @@ impl<T: DeviceReal> CudaResidual<T> {
         }
         let host: Vec<T> = network.parameters()?.into_iter().map(T::lit).collect();
         let weights = device.stream().clone_htod(&host)?;
+        // Each call reads the weights from a stream of its own.
+        device.stream().synchronize()?;
         Ok(Self {
             device,
             functions,
@@ -205,6 +207,7 @@ impl<T: DeviceReal> CudaResidual<T> {
         self.network.set_parameters(values)?;
         let host: Vec<T> = values.iter().map(|v| T::lit(*v)).collect();
         self.device.stream().memcpy_htod(&host, &mut self.weights)?;
+        self.device.stream().synchronize()?;
         Ok(())
     }
 

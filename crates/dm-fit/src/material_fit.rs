@@ -212,16 +212,30 @@ pub const RESIDUAL_CLIP_NORM: f64 = 5.0;
 /// Weight of the residual's regulariser Σ_p |Δv_p|² / n (method.md §5).
 pub const RESIDUAL_REGULARISER: f64 = 1e-3;
 
-/// An extra per-frame loss term (stage 3's photometric term): called for
-/// the frames 1, 2, … of the forward rollout in order, with the predicted
-/// particle positions at the end of that frame; returns its value and its
-/// gradient with respect to those positions.
+/// An extra per-frame loss term (stage 3's photometric term), given the
+/// predicted particle positions at the end of frames `first`, `first + 1`,
+/// … (calls continue where the last one ended: frames 1, 2, … of the
+/// forward rollout, in order); returns each frame's value and its gradient
+/// with respect to that frame's positions.
 pub trait FrameTerm {
+    fn frames(
+        &mut self,
+        first: usize,
+        positions: &[Vec<[f64; 3]>],
+    ) -> Result<Vec<(f64, Vec<[f64; 3]>)>, FitError>;
+
+    /// [`FrameTerm::frames`] for one frame.
     fn frame(
         &mut self,
         frame: usize,
         positions: &[[f64; 3]],
-    ) -> Result<(f64, Vec<[f64; 3]>), FitError>;
+    ) -> Result<(f64, Vec<[f64; 3]>), FitError> {
+        let mut terms = self.frames(frame, &[positions.to_vec()])?;
+        terms.pop().ok_or_else(|| FitError::InvalidOption {
+            option: "frames".into(),
+            problem: "the frame term returned no value".into(),
+        })
+    }
 }
 
 /// Gradients of the train loss.
@@ -302,7 +316,12 @@ pub fn loss_and_gradient_on(
     let mut corrections = Vec::with_capacity(steps);
     let mut frame_grads: Vec<Vec<[f64; 3]>> = Vec::with_capacity(steps);
     let mut frame_losses = Vec::with_capacity(steps);
-    let mut loss = 0.0;
+    // Per frame: the regulariser's and L_dyn's parts of the loss, summed
+    // with the extra term's in frame order once that is known.
+    let mut loss_parts = Vec::with_capacity(steps);
+    // The extra term's inputs: every frame's positions, taken together
+    // after the rollout (its views are independent of each other).
+    let mut extra_positions = Vec::new();
     for t in 0..steps {
         checkpoints.push(world.state()?);
         if network.is_some() {
@@ -310,30 +329,43 @@ pub fn loss_and_gradient_on(
         }
         let (from, to, grasp) = model.hand_step(bundle, t);
         world.step_frame(&from, &to, &grasp)?;
+        let mut regularised = 0.0;
         if let Some(network) = &network {
             let (dv, _) = world.edit(|w| apply_residual(w, network, &starts, t))??;
-            loss += regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
+            regularised = regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
         let positions = world.positions()?;
         let value = fixed.frame(bundle, t + 1, &positions)?;
-        loss += value.value / steps as f64;
+        loss_parts.push((regularised, value.value / steps as f64));
         frame_losses.push(value.value);
-        let mut grad: Vec<[f64; 3]> = value
-            .grad
-            .iter()
-            .map(|g| g.map(|c| c / steps as f64))
-            .collect();
-        if let Some(term) = extra.as_deref_mut() {
-            let (value, term_grad) = term.frame(t + 1, &positions)?;
+        frame_grads.push(
+            value
+                .grad
+                .iter()
+                .map(|g| g.map(|c| c / steps as f64))
+                .collect::<Vec<[f64; 3]>>(),
+        );
+        if extra.is_some() {
+            extra_positions.push(positions);
+        }
+    }
+    let extra_terms = match extra.as_deref_mut() {
+        Some(term) => term.frames(1, &extra_positions)?,
+        None => Vec::new(),
+    };
+    let mut loss = 0.0;
+    for (t, (regularised, dynamic)) in loss_parts.into_iter().enumerate() {
+        loss += regularised;
+        loss += dynamic;
+        if let Some((value, term_grad)) = extra_terms.get(t) {
             loss += value;
-            for (g, d) in grad.iter_mut().zip(&term_grad) {
+            for (g, d) in frame_grads[t].iter_mut().zip(term_grad) {
                 for c in 0..3 {
                     g[c] += d[c];
                 }
             }
         }
-        frame_grads.push(grad);
     }
 
     // Backward: replay each frame with a tape, newest first.

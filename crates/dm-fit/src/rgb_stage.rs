@@ -18,13 +18,14 @@ use dm_splat::fit::{FitView, view_loss};
 use dm_splat::lbs_backward::skin_means_vjp;
 use dm_splat::{Gaussians, RenderSettings, render, render_backward};
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use crate::material_fit::{FitError, FrameTerm};
 
 /// Weight of L_rgb in stage 3 (method.md §6).
 pub const DEFAULT_RGB_WEIGHT: f64 = 1e-2;
 
-/// The photometric term of one stage-3 iteration: call [`FrameTerm::frame`]
+/// The photometric term of one stage-3 iteration: call [`FrameTerm::frames`]
 /// for frames 1, 2, … in order (the skinning is incremental).
 #[derive(Debug)]
 pub struct RgbTerm<'a> {
@@ -87,49 +88,81 @@ fn appearance_error(e: dm_splat::SplatError) -> FitError {
     FitError::Appearance(e.into())
 }
 
-impl FrameTerm for RgbTerm<'_> {
-    fn frame(
-        &mut self,
+impl RgbTerm<'_> {
+    /// Masked L1 of `gaussians` (skinned to `frame`) seen by `camera`, and
+    /// its gradient with respect to the Gaussians' means (scaled).
+    fn view_term(
+        &self,
+        gaussians: &Gaussians<f32>,
+        camera: usize,
         frame: usize,
-        positions: &[[f64; 3]],
-    ) -> Result<(f64, Vec<[f64; 3]>), FitError> {
-        let binding = self
-            .follower
-            .advance_f64(positions)
-            .map_err(appearance_error)?;
-        let gaussians = self.follower.gaussians();
-        let mut value = 0.0;
-        let mut grad_means = vec![Vector3::<f64>::zeros(); gaussians.len()];
-        for &camera in self.cameras {
-            let view = self.view(camera, frame)?;
-            let forward =
-                render(gaussians, &view.camera, &self.settings).map_err(appearance_error)?;
-            let rendered: Vec<[f64; 3]> =
-                forward.image().iter().map(|p| p.map(f64::from)).collect();
-            let loss = view_loss(&rendered, &view, self.settings.background, 0.0);
-            self.l1_sum += loss.l1;
-            self.terms += 1;
-            value += self.scale * loss.l1;
-            let grad_image: Vec<[f32; 3]> = loss
-                .grad_image
-                .iter()
-                .map(|g| g.map(|v| (v * self.scale) as f32))
-                .collect();
-            let grads = render_backward(
-                gaussians,
-                &view.camera,
-                &self.settings,
-                &forward,
-                &grad_image,
-            )
-            .map_err(appearance_error)?;
-            for (sum, g) in grad_means.iter_mut().zip(&grads.means) {
-                *sum += g.map(f64::from);
-            }
-        }
+    ) -> Result<(f64, Vec<Vector3<f64>>), FitError> {
+        let view = self.view(camera, frame)?;
+        let forward = render(gaussians, &view.camera, &self.settings).map_err(appearance_error)?;
+        let rendered: Vec<[f64; 3]> = forward.image().iter().map(|p| p.map(f64::from)).collect();
+        let loss = view_loss(&rendered, &view, self.settings.background, 0.0);
+        let grad_image: Vec<[f32; 3]> = loss
+            .grad_image
+            .iter()
+            .map(|g| g.map(|v| (v * self.scale) as f32))
+            .collect();
+        let grads = render_backward(
+            gaussians,
+            &view.camera,
+            &self.settings,
+            &forward,
+            &grad_image,
+        )
+        .map_err(appearance_error)?;
         Ok((
-            value,
-            skin_means_vjp(&binding, &grad_means, positions.len()),
+            loss.l1,
+            grads.means.iter().map(|g| g.map(f64::from)).collect(),
         ))
+    }
+}
+
+impl FrameTerm for RgbTerm<'_> {
+    /// The skinning advances frame by frame; then every (frame, camera)
+    /// view is rendered and differentiated in parallel, and the sums are
+    /// taken in frame and camera order as one frame at a time would.
+    fn frames(
+        &mut self,
+        first: usize,
+        positions: &[Vec<[f64; 3]>],
+    ) -> Result<Vec<(f64, Vec<[f64; 3]>)>, FitError> {
+        let mut skinned = Vec::with_capacity(positions.len());
+        for frame_positions in positions {
+            let binding = self
+                .follower
+                .advance_f64(frame_positions)
+                .map_err(appearance_error)?;
+            skinned.push((binding, self.follower.gaussians().clone()));
+        }
+        let this = &*self;
+        let views: Vec<(f64, Vec<Vector3<f64>>)> = (0..positions.len())
+            .flat_map(|i| this.cameras.iter().map(move |&camera| (i, camera)))
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(i, camera)| this.view_term(&skinned[i].1, camera, first + i))
+            .collect::<Result<_, FitError>>()?;
+        let mut views = views.into_iter();
+        let mut out = Vec::with_capacity(positions.len());
+        for ((binding, gaussians), frame_positions) in skinned.iter().zip(positions) {
+            let mut value = 0.0;
+            let mut grad_means = vec![Vector3::<f64>::zeros(); gaussians.len()];
+            for (l1, grads) in views.by_ref().take(self.cameras.len()) {
+                self.l1_sum += l1;
+                self.terms += 1;
+                value += self.scale * l1;
+                for (sum, g) in grad_means.iter_mut().zip(&grads) {
+                    *sum += g;
+                }
+            }
+            out.push((
+                value,
+                skin_means_vjp(binding, &grad_means, frame_positions.len()),
+            ));
+        }
+        Ok(out)
     }
 }

@@ -212,6 +212,9 @@ pub const RESIDUAL_CLIP_NORM: f64 = 5.0;
 /// Weight of the residual's regulariser Σ_p |Δv_p|² / n (method.md §5).
 pub const RESIDUAL_REGULARISER: f64 = 1e-3;
 
+/// A frame term's value and its gradient with respect to the positions.
+pub type TermValue = (f64, Vec<[f64; 3]>);
+
 /// An extra per-frame loss term (stage 3's photometric term), given the
 /// predicted particle positions at the end of frames `first`, `first + 1`,
 /// … (calls continue where the last one ended: frames 1, 2, … of the
@@ -222,14 +225,10 @@ pub trait FrameTerm {
         &mut self,
         first: usize,
         positions: &[Vec<[f64; 3]>],
-    ) -> Result<Vec<(f64, Vec<[f64; 3]>)>, FitError>;
+    ) -> Result<Vec<TermValue>, FitError>;
 
     /// [`FrameTerm::frames`] for one frame.
-    fn frame(
-        &mut self,
-        frame: usize,
-        positions: &[[f64; 3]],
-    ) -> Result<(f64, Vec<[f64; 3]>), FitError> {
+    fn frame(&mut self, frame: usize, positions: &[[f64; 3]]) -> Result<TermValue, FitError> {
         let mut terms = self.frames(frame, &[positions.to_vec()])?;
         terms.pop().ok_or_else(|| FitError::InvalidOption {
             option: "frames".into(),
@@ -293,7 +292,7 @@ pub fn loss_and_gradient_on(
     frames: usize,
     window: usize,
     device: Device,
-    mut extra: Option<&mut dyn FrameTerm>,
+    extra: Option<&mut dyn FrameTerm>,
 ) -> Result<(f64, LossGradients), FitError> {
     let frames = frames.min(bundle.frame_count());
     if frames < 2 {
@@ -350,7 +349,7 @@ pub fn loss_and_gradient_on(
             extra_positions.push(positions);
         }
     }
-    let extra_terms = match extra.as_deref_mut() {
+    let extra_terms = match extra {
         Some(term) => term.frames(1, &extra_positions)?,
         None => Vec::new(),
     };

@@ -20,7 +20,7 @@ use dm_splat::{Gaussians, RenderSettings, render, render_backward};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use crate::material_fit::{FitError, FrameTerm};
+use crate::material_fit::{FitError, FrameTerm, TermValue};
 
 /// Weight of L_rgb in stage 3 (method.md §6).
 pub const DEFAULT_RGB_WEIGHT: f64 = 1e-2;
@@ -129,7 +129,7 @@ impl FrameTerm for RgbTerm<'_> {
         &mut self,
         first: usize,
         positions: &[Vec<[f64; 3]>],
-    ) -> Result<Vec<(f64, Vec<[f64; 3]>)>, FitError> {
+    ) -> Result<Vec<TermValue>, FitError> {
         let mut skinned = Vec::with_capacity(positions.len());
         for frame_positions in positions {
             let binding = self

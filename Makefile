@@ -200,7 +200,7 @@ bench-fit: build
 	@for run in 1 2 3; do \
 	  rm -rf $(OUT)/bench-fit; \
 	  ./target/release/dm-fit $(OUT)/scene --out $(OUT)/bench-fit $(DEMO_FIT) > $(OUT)/bench-fit.log 2>&1 || { cat $(OUT)/bench-fit.log; exit 1; }; \
-	  python3 -c 'import json; r=json.load(open("$(OUT)/bench-fit/fit_report.json")); print("fit_s %.1f  (E %.3g Pa, final loss %.3g)" % (r["seconds"], r["material"]["E_median_pa"], r["loss"]["final"]))'; \
+	  python3 -c 'import json; r=json.load(open("$(OUT)/bench-fit/fit_report.json")); print("fit_s %.1f  (E %.3g Pa, final loss %.3g; by stage: %s)" % (r["seconds"], r["material"]["E_median_pa"], r["loss"]["final"], ", ".join("%s %.1f" % kv for kv in r["seconds_by_stage"].items())))'; \
 	done
 
 # Stepping from Python against dm-sim on the demo's model (docs/BENCHMARKS.md).

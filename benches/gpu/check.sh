@@ -8,7 +8,8 @@
 #    Neo-Hookean and the expert mixture, with the CPU figure beside it;
 #    one truncated window (20 substeps, forward and backward) at 1e5
 #    particles, with its gradients against the CPU's; one frame of the
-#    residual network (forward and VJP, 8 000 particles) on both;
+#    residual network (forward and VJP, 8 000 particles) on both; the
+#    splat renderer on the host's cores;
 # 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
 #    the GPU (times and largest position difference), and the playground's
 #    frame with all the model's particles at its substeps on both;
@@ -56,6 +57,8 @@ run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
 for device in cuda cpu; do
     run "$BIN/dm-bench" residual --device "$device" --particles 8000 --repeats 9
 done
+# Stage 3's splats stay on the CPU: the renderer on the host's cores.
+run "$BIN/dm-bench" render --gaussians 50000 --width 640 --height 480
 if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     mkdir -p "$OUT_DIR"
     for device in cpu cuda; do
@@ -69,13 +72,15 @@ if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
 fi
 if [ -n "${FIT_SCENE:-}" ]; then
     mkdir -p "$OUT_DIR"
+    # One line per fit: its time, where the time went, and the result.
+    FIT_SUMMARY='import json,sys; r=json.load(open(sys.argv[2])); print("%s: %.1f s (%s), E %.4g Pa, final loss %.5g, residual %s" % (sys.argv[1], r["seconds"], ", ".join("%s %.1f" % kv for kv in r.get("seconds_by_stage", {}).items()), r["material"]["E_median_pa"], r["loss"]["final"], r["residual"]["kind"]))'
     for device in cuda cpu; do
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$device" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$device"
-        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit $device: %.1f s, E %.4g Pa, final loss %.5g' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final']))" "$OUT_DIR/fit-$device/fit_report.json"
+        python3 -c "$FIT_SUMMARY" "dm-fit $device" "$OUT_DIR/fit-$device/fit_report.json"
     done
     if [ "${FIT_DEFAULTS:-0}" = 1 ]; then
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-defaults-cuda" --device cuda
-        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-fit defaults cuda: %.1f s, E %.4g Pa, final loss %.5g, residual %s' % (r['seconds'], r['material']['E_median_pa'], r['loss']['final'], json.dumps(r['residual'])[:200]))" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
+        python3 -c "$FIT_SUMMARY" "dm-fit defaults cuda" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
     fi
     if [ -e "$FIT_SCENE.truth.json" ]; then
         for device in cuda cpu; do

@@ -144,6 +144,9 @@ impl FrameTerm for RgbTerm<'_> {
             .collect::<Vec<_>>()
             .into_par_iter()
             .map(|(i, camera)| this.view_term(&skinned[i].1, camera, first + i))
+            .collect::<Vec<_>>()
+            .into_iter()
+            // The first failing view's error, whatever the thread count.
             .collect::<Result<_, FitError>>()?;
         let mut views = views.into_iter();
         let mut out = Vec::with_capacity(positions.len());

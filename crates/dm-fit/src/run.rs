@@ -417,6 +417,9 @@ fn select_gains(
                     loss: train_loss_on(&candidate, bundle, frames, options.device)?,
                 })
             })
+            .collect::<Vec<_>>()
+            .into_iter()
+            // The first failing candidate's error, whatever the thread count.
             .collect::<Result<_, FitError>>()?;
         for trial in &generation {
             if trial.loss < best.loss {

@@ -76,6 +76,9 @@ pub fn material_sensitivity(
     let changes = moves
         .par_iter()
         .map(|&(factor, shift)| relative(factor, shift))
+        .collect::<Vec<_>>()
+        .into_iter()
+        // The first failing move's error, whatever the thread count.
         .collect::<Result<Vec<f64>, FitError>>()?;
     Ok(MaterialSensitivity {
         youngs_down: changes[0],

@@ -82,9 +82,13 @@ pub fn mppi(
             project(&mut sample);
             samples.push(sample);
         }
+        // All samples run to the end; a failure is reported as the first
+        // failing sample's, whatever the thread count.
         let costs = samples
             .par_iter()
             .map(|sample| cost(sample))
+            .collect::<Vec<_>>()
+            .into_iter()
             .collect::<Result<Vec<f64>, PlanError>>()?;
         rollouts += samples.len();
         for (sample, &c) in samples.iter().zip(&costs) {

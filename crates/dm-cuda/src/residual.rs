@@ -177,6 +177,18 @@ fn blocks_of(grid: (u32, u32, u32), threads: u32) -> LaunchConfig {
     }
 }
 
+/// Waits for a call's stream when the call returns, an error included: its
+/// kernels read the weights, which must outlive them (buffers carry no
+/// events, docs/gpu.md "Streams").
+struct WaitOnExit<'a>(&'a Arc<CudaStream>);
+
+impl Drop for WaitOnExit<'_> {
+    fn drop(&mut self) {
+        // A failed wait leaves the context failed; the next call reports it.
+        let _ = self.0.synchronize();
+    }
+}
+
 impl<T: DeviceReal> CudaResidual<T> {
     /// `network` (its spec and weights) on `device`; compiles the kernels
     /// of T's precision on first use.
@@ -216,6 +228,7 @@ impl<T: DeviceReal> CudaResidual<T> {
         self.network.check_inputs(inputs)?;
         check_size(inputs.particle_count())?;
         let device = self.device.with_own_stream()?;
+        let _finished = WaitOnExit(device.stream());
         let ops = self.ops(&device);
         let (dv, _) = self.forward(&ops, inputs)?;
         Ok(triples(&ops.stream.clone_dtoh(&dv)?))
@@ -238,6 +251,7 @@ impl<T: DeviceReal> CudaResidual<T> {
         }
         check_size(inputs.particle_count())?;
         let device = self.device.with_own_stream()?;
+        let _finished = WaitOnExit(device.stream());
         let ops = self.ops(&device);
         let (_, tape) = self.forward(&ops, inputs)?;
         let grad = ops.stream.clone_htod(&flatten::<T>(grad_dv))?;

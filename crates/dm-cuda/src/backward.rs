@@ -310,6 +310,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         with_state: bool,
     ) -> Result<WindowGrads<T>, CudaError> {
         let stream = self.device().stream().clone();
+        ParticleBuffers::check_taped_on(&tape.states, &stream)?;
         let mut grad = upload(
             &stream,
             &grad_after.x,

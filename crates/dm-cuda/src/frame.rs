@@ -53,6 +53,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             )));
         }
         let stream = self.device().stream().clone();
+        ParticleBuffers::check_taped_on(&tape.states, &stream)?;
         let host = self.host_world();
         let slot_grad = ParticleGrads {
             x: host.to_slot_order(&grad_after.x),

@@ -57,6 +57,22 @@ impl<T: DeviceReal> ParticleBuffers<T> {
         })
     }
 
+    /// Refuses states taped on another stream than `stream` (another
+    /// world's): the backward pass would read them unsynchronised, as
+    /// buffers carry no events (docs/gpu.md, "Streams").
+    pub(crate) fn check_taped_on(
+        states: &[Self],
+        stream: &Arc<CudaStream>,
+    ) -> Result<(), CudaError> {
+        if states.iter().all(|s| Arc::ptr_eq(s.x.stream(), stream)) {
+            Ok(())
+        } else {
+            Err(CudaError::Unsupported(
+                "the tape was recorded by another world".into(),
+            ))
+        }
+    }
+
     /// A device copy of `self`.
     pub(crate) fn duplicate(&self, stream: &Arc<CudaStream>) -> Result<Self, CudaError> {
         Ok(Self {

@@ -164,11 +164,12 @@ impl Bundle {
     pub fn open(dir: impl AsRef<Path>) -> Result<Bundle> {
         let root = dir.as_ref().to_path_buf();
         if !root.is_dir() {
-            return Err(BundleError::new(
-                &root,
-                crate::error::IO_FIELD,
-                "not a directory",
-            ));
+            let problem = if root.exists() {
+                "not a directory (a bundle is a folder holding bundle.json)"
+            } else {
+                "no such folder"
+            };
+            return Err(BundleError::new(&root, crate::error::IO_FIELD, problem));
         }
         let json_path = root.join(BUNDLE_JSON);
         let meta = BundleMeta::read(&json_path)?;

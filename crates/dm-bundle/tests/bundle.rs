@@ -260,6 +260,21 @@ fn depth_encoding_rounds_and_clamps() {
 }
 
 #[test]
+fn a_missing_or_file_path_says_which() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let missing = tmp.path().join("no_scene");
+    let err = open_err(&missing);
+    assert_eq!(err.path, missing);
+    assert_eq!(err.problem, "no such folder");
+    let file = tmp.path().join("bundle.json");
+    fs::write(&file, "{}")?;
+    let err = open_err(&file);
+    assert_eq!(err.path, file);
+    assert!(err.problem.starts_with("not a directory"), "{err}");
+    Ok(())
+}
+
+#[test]
 fn truncated_npy_names_the_file() -> TestResult {
     let (_tmp, dir) = fresh_bundle()?;
     let path = dir.join("tracks/object_points.npy");

@@ -297,7 +297,9 @@ pub struct FitReport {
     pub residual: serde_json::Value,
     pub seconds: f64,
     /// Where the time went: `seconds` split by part, plus `report` (the
-    /// final loss and the probes, not in `seconds`).
+    /// final loss and the probes, not in `seconds`); empty in reports
+    /// written without it.
+    #[serde(default)]
     pub seconds_by_stage: StageTimes,
     pub options: FitOptions,
     pub frames: usize,

@@ -1,5 +1,5 @@
 //! Issue 3: `fit_report.json` says how sharply the clip pins the fitted E
-//! and ν (`material.sensitivity`).
+//! and ν (`material.sensitivity`), and where the fit's time went.
 
 mod common;
 
@@ -50,4 +50,30 @@ fn issue3_fit_report_has_the_material_sensitivity() {
         // alters the rollout of this stretched rope somewhat.
         assert!(change.is_finite() && change != 0.0, "{key}: {change}");
     }
+    // Where the time went: the steps' parts sum to `seconds` (a part's
+    // time is taken out of its step's, so only round-off differs), and
+    // the report's own time is apart.
+    let by_stage = report["seconds_by_stage"]
+        .as_object()
+        .unwrap_or_else(|| panic!("seconds_by_stage: {report}"));
+    let steps: f64 = by_stage
+        .iter()
+        .filter(|(part, _)| part.as_str() != "report")
+        .map(|(_, seconds)| seconds.as_f64().unwrap_or(f64::NAN))
+        .sum();
+    let seconds = report["seconds"].as_f64().expect("seconds");
+    assert!(
+        (steps - seconds).abs() <= 1e-9 * seconds.max(1.0),
+        "{steps} vs {seconds}"
+    );
+    assert!(by_stage.contains_key("material1") && by_stage.contains_key("report"));
+    // A report written without the split still reads (dm-diagnose reads
+    // the fit_report.json of models fitted before).
+    let mut older = report.clone();
+    older
+        .as_object_mut()
+        .expect("object")
+        .remove("seconds_by_stage");
+    let read: dm_fit::run::FitReport = serde_json::from_value(older).expect("older report");
+    assert!(read.seconds_by_stage.is_empty());
 }

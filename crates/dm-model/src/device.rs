@@ -93,17 +93,10 @@ impl DeviceWorld<f32> {
 }
 
 impl<T: DeviceReal> DeviceWorld<T> {
-    /// `world` moved to `device`.
+    /// `world` moved to `device`; on the GPU with a stream of its own, so
+    /// that worlds stepped from several threads (the gain search's
+    /// candidates, MPPI's samples, the probes' moves) run there at once.
     pub fn new(world: World<T>, device: Device) -> Result<Self, ModelError> {
-        Ok(match device {
-            Device::Cpu => DeviceWorld::Cpu(Box::new(world)),
-            Device::Cuda => DeviceWorld::Cuda(Box::new(CudaWorld::new(world, shared_gpu()?)?)),
-        })
-    }
-
-    /// [`DeviceWorld::new`], on the GPU with a stream of its own, so that
-    /// worlds stepped from several threads run there at once.
-    pub fn new_on_own_stream(world: World<T>, device: Device) -> Result<Self, ModelError> {
         Ok(match device {
             Device::Cpu => DeviceWorld::Cpu(Box::new(world)),
             Device::Cuda => DeviceWorld::Cuda(Box::new(CudaWorld::new(

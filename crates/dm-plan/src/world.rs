@@ -116,7 +116,7 @@ impl PlanningModel {
             self.actuator,
         )?;
         Ok(CorrectedWorld::new(
-            DeviceWorld::new_on_own_stream(world, self.device)?,
+            DeviceWorld::new(world, self.device)?,
             self.residual.clone(),
         ))
     }

@@ -122,10 +122,32 @@ impl RgbTerm<'_> {
 }
 
 impl FrameTerm for RgbTerm<'_> {
-    /// The skinning advances frame by frame; then every (frame, camera)
-    /// view is rendered and differentiated in parallel, and the sums are
-    /// taken in frame and camera order as one frame at a time would.
+    /// The skinning advances frame by frame; the (frame, camera) views of
+    /// [`FRAMES_AT_ONCE`] frames at a time are rendered and differentiated
+    /// in parallel, and the sums are taken in frame and camera order as one
+    /// frame at a time would (the result does not depend on the grouping).
     fn frames(
+        &mut self,
+        first: usize,
+        positions: &[Vec<[f64; 3]>],
+    ) -> Result<Vec<TermValue>, FitError> {
+        let mut out = Vec::with_capacity(positions.len());
+        for (group, group_positions) in positions.chunks(FRAMES_AT_ONCE).enumerate() {
+            let group_first = first + group * FRAMES_AT_ONCE;
+            out.extend(self.frame_group(group_first, group_positions)?);
+        }
+        Ok(out)
+    }
+}
+
+/// Frames whose skinned Gaussians are held at once by
+/// [`RgbTerm::frames`]: 48 views in parallel with 3 cameras, enough for
+/// 16 cores, while the copies stay bounded for large splat sets.
+const FRAMES_AT_ONCE: usize = 16;
+
+impl RgbTerm<'_> {
+    /// [`FrameTerm::frames`] for one group of frames.
+    fn frame_group(
         &mut self,
         first: usize,
         positions: &[Vec<[f64; 3]>],

@@ -79,7 +79,9 @@ if [ -n "${FIT_SCENE:-}" ]; then
         python3 -c "$FIT_SUMMARY" "dm-fit $device" "$OUT_DIR/fit-$device/fit_report.json"
     done
     if [ "${FIT_DEFAULTS:-0}" = 1 ]; then
+        started=$(date +%s.%N)
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-defaults-cuda" --device cuda
+        echo "dm-fit defaults cuda: the whole command took $(python3 -c "import sys; print('%.1f' % (float(sys.argv[2]) - float(sys.argv[1])))" "$started" "$(date +%s.%N)") s"
         python3 -c "$FIT_SUMMARY" "dm-fit defaults cuda" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
     fi
     if [ -e "$FIT_SCENE.truth.json" ]; then

@@ -64,20 +64,21 @@ std::recursive_mutex& device_lock() {
 // ---- counts --------------------------------------------------------------
 //
 // With DM_CUDA_EMULATOR_COUNTS=FILE the emulator writes to FILE at exit
-// what the run asked of the device: launches (and blocks) per kernel,
-// copies each way with their bytes, allocations and waits. These do not
+// what the run asked of the device: launches (and blocks) per kernel, and
+// calls with their bytes per kind (copies each way, allocations, memsets,
+// waits, event calls). These do not
 // depend on how slowly the emulator runs them, so they show where a GPU
 // run's launch and transfer latency goes.
 
 struct Counts {
     std::map<std::string, std::pair<uint64_t, uint64_t>> launches;  // name: launches, blocks
-    std::map<std::string, std::pair<uint64_t, uint64_t>> transfers;  // kind: calls, bytes
+    std::map<std::string, std::pair<uint64_t, uint64_t>> calls;  // kind: calls, bytes
     bool enabled = std::getenv("DM_CUDA_EMULATOR_COUNTS") != nullptr;
 
-    void transfer(const char* kind, size_t bytes) {
+    void call(const char* kind, size_t bytes) {
         if (!enabled) return;
         std::lock_guard<std::recursive_mutex> guard(device_lock());
-        auto& entry = transfers[kind];
+        auto& entry = calls[kind];
         entry.first += 1;
         entry.second += bytes;
     }
@@ -90,7 +91,7 @@ struct Counts {
         for (const auto& [name, entry] : launches)
             std::fprintf(out, "launch %s %llu %llu\n", name.c_str(),
                          (unsigned long long)entry.first, (unsigned long long)entry.second);
-        for (const auto& [kind, entry] : transfers)
+        for (const auto& [kind, entry] : calls)
             std::fprintf(out, "%s %llu %llu\n", kind.c_str(),
                          (unsigned long long)entry.first, (unsigned long long)entry.second);
         std::fclose(out);
@@ -366,25 +367,25 @@ EXPORT CUresult cuDevicePrimaryCtxRetain(CUcontext* context, CUdevice) { *contex
 EXPORT CUresult cuDevicePrimaryCtxRelease_v2(CUdevice) { return SUCCESS; }
 EXPORT CUresult cuCtxSetCurrent(CUcontext) { return SUCCESS; }
 EXPORT CUresult cuCtxGetCurrent(CUcontext* context) { *context = &the_context; return SUCCESS; }
-EXPORT CUresult cuCtxSynchronize() { counts().transfer("wait", 0); return SUCCESS; }
+EXPORT CUresult cuCtxSynchronize() { counts().call("wait", 0); return SUCCESS; }
 EXPORT CUresult cuCtxGetStreamPriorityRange(int* least, int* greatest) { *least = *greatest = 0; return SUCCESS; }
 
 EXPORT CUresult cuStreamCreate(CUstream* stream, unsigned) { *stream = new int(0); return SUCCESS; }
 EXPORT CUresult cuStreamCreateWithPriority(CUstream* stream, unsigned, int) { *stream = new int(0); return SUCCESS; }
 EXPORT CUresult cuStreamDestroy_v2(CUstream stream) { delete static_cast<int*>(stream); return SUCCESS; }
-EXPORT CUresult cuStreamSynchronize(CUstream) { counts().transfer("wait", 0); return SUCCESS; }
-EXPORT CUresult cuStreamWaitEvent(CUstream, CUevent, unsigned) { counts().transfer("stream_wait_event", 0); return SUCCESS; }
+EXPORT CUresult cuStreamSynchronize(CUstream) { counts().call("wait", 0); return SUCCESS; }
+EXPORT CUresult cuStreamWaitEvent(CUstream, CUevent, unsigned) { counts().call("stream_wait_event", 0); return SUCCESS; }
 EXPORT CUresult cuStreamQuery(CUstream) { return SUCCESS; }
 
 EXPORT CUresult cuEventCreate(CUevent* event, unsigned) {
-    counts().transfer("event_create", 0);
+    counts().call("event_create", 0);
     *event = new int(0);
     return SUCCESS;
 }
 EXPORT CUresult cuEventDestroy_v2(CUevent event) { delete static_cast<int*>(event); return SUCCESS; }
-EXPORT CUresult cuEventRecord(CUevent, CUstream) { counts().transfer("event_record", 0); return SUCCESS; }
+EXPORT CUresult cuEventRecord(CUevent, CUstream) { counts().call("event_record", 0); return SUCCESS; }
 EXPORT CUresult cuEventQuery(CUevent) { return SUCCESS; }
-EXPORT CUresult cuEventSynchronize(CUevent) { counts().transfer("wait", 0); return SUCCESS; }
+EXPORT CUresult cuEventSynchronize(CUevent) { counts().call("wait", 0); return SUCCESS; }
 EXPORT CUresult cuEventElapsedTime(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
 EXPORT CUresult cuEventElapsedTime_v2(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
 
@@ -395,7 +396,7 @@ static CUresult allocate(CUdeviceptr* pointer, size_t bytes) {
     const size_t rounded = ((bytes + 255) / 256) * 256;
     void* memory = std::aligned_alloc(256, rounded > 0 ? rounded : 256);
     if (!memory) return 2;  // CUDA_ERROR_OUT_OF_MEMORY
-    counts().transfer("alloc", bytes);
+    counts().call("alloc", bytes);
     std::memset(memory, 0xFF, rounded);
     *pointer = (CUdeviceptr)memory;
     return SUCCESS;
@@ -407,7 +408,7 @@ EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream) { std::free((void*
 EXPORT CUresult cuMemsetD8_v2(CUdeviceptr to, unsigned char value, size_t n) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     std::memset((void*)to, value, n);
-    counts().transfer("memset", n);
+    counts().call("memset", n);
     return SUCCESS;
 }
 EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, CUstream) {
@@ -416,7 +417,7 @@ EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, C
 EXPORT CUresult cuMemcpyHtoD_v2(CUdeviceptr to, const void* from, size_t n) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     std::memcpy((void*)to, from, n);
-    counts().transfer("htod", n);
+    counts().call("htod", n);
     return SUCCESS;
 }
 EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n, CUstream) {
@@ -425,7 +426,7 @@ EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n,
 EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     std::memcpy(to, (const void*)from, n);
-    counts().transfer("dtoh", n);
+    counts().call("dtoh", n);
     return SUCCESS;
 }
 EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstream) {
@@ -434,7 +435,7 @@ EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstr
 EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     std::memmove((void*)to, (const void*)from, n);
-    counts().transfer("dtod", n);
+    counts().call("dtod", n);
     return SUCCESS;
 }
 EXPORT CUresult cuMemcpyDtoDAsync_v2(CUdeviceptr to, CUdeviceptr from, size_t n, CUstream) {

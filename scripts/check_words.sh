@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ordinals='first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|twelfth|thirteenth|fourteenth|fifteenth|sixteenth|seventeenth|eighteenth|nineteenth|twentieth|twenty-[a-z]+|thirtieth'
-pattern="\\b(${ordinals}|this|last|previous|next|earlier|later)[- ]sessions?\\b|\\bthe filer\\b|\\bissues? [0-9]+\\b"
+pattern="\\b(${ordinals}|this|last|previous|next|earlier|later)[- ]sessions?\\b|\\bthe filer\\b|\\bissues? [0-9]+\\b|\\bissue[0-9]+_"
 if git grep -nIiE "$pattern" -- README.md docs crates tools benchmarks benches scripts fixtures Makefile Cargo.toml models_manifest \
      ':!*/tests/*' ':!tests/*' ':!scripts/check_words.sh'; then
   echo "error: the lines above speak of how the project was developed; say what the software does now (history belongs in git log)" >&2

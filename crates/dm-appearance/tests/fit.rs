@@ -19,7 +19,7 @@ const MIN_GAIN_DB: f64 = 8.0;
 const TINY_HELD_OUT_PSNR_DB: f64 = 24.0;
 
 #[test]
-fn issue7_fit_reaches_psnr_on_tiny_scene_and_round_trips() {
+fn fit_reaches_psnr_on_tiny_scene_and_round_trips() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = dir.path().join("scene");
     dm_synth::generate(

@@ -72,7 +72,8 @@ pub struct DiagnoseOptions {
     /// (0: effect parameter only).
     #[arg(long, default_value_t = DEFAULT_REFIT_ITERS)]
     pub refit_iters: usize,
-    /// Held-out score below which the cause is `none`.
+    /// Score (the smaller of the candidate's Track-error reductions on the
+    /// fitted and the validation training frames) below which the cause is `none`.
     #[arg(long = "threshold", value_name = "THRESHOLD", default_value_t = NONE_THRESHOLD)]
     pub none_threshold: f64,
     /// Score each candidate by a fresh fit with its effect in place (the

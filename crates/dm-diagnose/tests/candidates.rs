@@ -38,7 +38,7 @@ fn total_mass(model: &WorldModel) -> f64 {
 }
 
 #[test]
-fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
+fn density_candidate_keeps_the_fitted_mass_on_two_axes() {
     let dir = tempfile::tempdir().expect("temp dir");
     let model = tiny_cloth_model(dir.path());
     let quiet = Signatures {
@@ -92,7 +92,7 @@ fn issue6_density_candidate_keeps_the_fitted_mass_on_two_axes() {
 /// axis), so
 /// `effect_parameters` reports the learnt values.
 #[test]
-fn issue6_learnt_parameters_read_back_in_the_trials_terms() {
+fn learnt_parameters_read_back_in_the_trials_terms() {
     let dir = tempfile::tempdir().expect("temp dir");
     let model = tiny_cloth_model(dir.path());
     let tried = |pairs: &[(&str, f64)]| -> std::collections::BTreeMap<String, f64> {

@@ -48,7 +48,7 @@ fn sig(samples: &[AccelSample]) -> dm_diagnose::signatures::Signatures {
 }
 
 #[test]
-fn issue6_drag_signature_recovers_the_rate_and_ignores_noise() {
+fn drag_signature_recovers_the_rate_and_ignores_noise() {
     let (k, t) = opposing_rate(
         &drag_samples(3.0, 0.5, 1.0)
             .iter()
@@ -62,7 +62,7 @@ fn issue6_drag_signature_recovers_the_rate_and_ignores_noise() {
 }
 
 #[test]
-fn issue6_floor_friction_signature_only_counts_points_on_the_floor() {
+fn floor_friction_signature_only_counts_points_on_the_floor() {
     // Horizontal drag on points at the floor: the floor rate sees it.
     let on_floor = sig(&drag_samples(4.0, 0.5, 0.005));
     assert!(
@@ -77,7 +77,7 @@ fn issue6_floor_friction_signature_only_counts_points_on_the_floor() {
 }
 
 #[test]
-fn issue6_tilt_signature_finds_a_constant_horizontal_acceleration() {
+fn tilt_signature_finds_a_constant_horizontal_acceleration() {
     let g_h = [0.6, -0.8, 0.0];
     let samples: Vec<AccelSample> = (0..400)
         .map(|i| AccelSample {
@@ -95,7 +95,7 @@ fn issue6_tilt_signature_finds_a_constant_horizontal_acceleration() {
 }
 
 #[test]
-fn issue6_density_signature_sees_sag_growing_along_the_axis() {
+fn density_signature_sees_sag_growing_along_the_axis() {
     let samples: Vec<AccelSample> = (0..400)
         .map(|i| {
             let x = noise(i) * 0.25;
@@ -118,7 +118,7 @@ fn issue6_density_signature_sees_sag_growing_along_the_axis() {
 }
 
 #[test]
-fn issue6_lag_signature_finds_the_shift_of_the_hand_track() {
+fn lag_signature_finds_the_shift_of_the_hand_track() {
     // The object follows the true hand; the record lags it by 3 frames:
     // recorded(t) = true(t − 3), so the object at t matches recorded(t + 3).
     let truth = |t: f64| [0.1 * (t / 6.0).sin(), 0.05 * t / 30.0, 0.0];
@@ -129,7 +129,7 @@ fn issue6_lag_signature_finds_the_shift_of_the_hand_track() {
 }
 
 #[test]
-fn issue6_confidence_and_geometry_helpers() {
+fn confidence_and_geometry_helpers() {
     // Named: a clear winner far above the threshold is confident; a tie is not.
     assert!(confidence(0.5, 0.0, 0.1) > 0.9);
     assert!(confidence(0.5, 0.5, 0.1) <= 0.5);

@@ -163,7 +163,7 @@ pub struct IterationReport {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rgb_l1: Option<f64>,
     /// L_dyn over the last 30 % of the fitted frames, before the step
-    /// ([`late_frames_loss`]); absent in reports written before it existed.
+    /// ([`late_frames_loss`]); a report without it reads as `None`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub late_loss: Option<f64>,
 }

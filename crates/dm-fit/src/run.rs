@@ -53,8 +53,8 @@ pub struct FitOptions {
     #[arg(long, default_value_t = 36)]
     #[serde(default)]
     pub residual_iters: usize,
-    /// Which network the residual-only stage keeps. Run records written
-    /// before the option existed read as `last`, as they ran.
+    /// Which network the residual-only stage keeps. A run record without
+    /// this key reads as `last`.
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
@@ -74,7 +74,7 @@ pub struct FitOptions {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Let the gain search also choose the grasp radius (log-scaled in
-    /// [GRASP_RADIUS_SEARCH_M]), starting from the model's.
+    /// [5, 60] mm), starting from the model's.
     #[arg(long)]
     #[serde(default)]
     pub search_grasp_radius: bool,
@@ -89,8 +89,8 @@ pub struct FitOptions {
     #[serde(default = "default_rgb_weight")]
     pub rgb_weight: f64,
     /// The particle damping rate: learnt in stages 2 and 3, at most the
-    /// category's default (docs/fit.md), or kept at that default. Run
-    /// records written before the option existed read as `fixed`, as they ran.
+    /// category's default (docs/fit.md), or kept at that default. A run
+    /// record without this key reads as `fixed`.
     #[arg(long, value_enum, default_value_t = ParticleDamping::Fixed)]
     #[serde(default)]
     pub damping: ParticleDamping,
@@ -256,7 +256,7 @@ pub struct GainTrial {
 }
 
 /// Range of `--search-grasp-radius`, metres: from about one particle
-/// spacing of a demo-scale scene to a palm.
+/// spacing of a demo-scale scene to a palm (the option's help quotes it).
 pub const GRASP_RADIUS_SEARCH_M: [f64; 2] = [0.005, 0.06];
 
 /// Everything needed to resume a fit.

@@ -15,7 +15,7 @@ fn saved(dir: &std::path::Path) -> WorldModel {
 }
 
 #[test]
-fn issue6_fit_from_a_starting_model_learns_or_keeps_its_effect_and_matches_run_fit_from_the_default()
+fn fit_from_a_starting_model_learns_or_keeps_its_effect_and_matches_run_fit_from_the_default()
  {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
@@ -136,7 +136,7 @@ fn assert_coefficient_moves_toward(
 /// in the scene (60 /s) moves it toward the hidden drag (on this rope
 /// the training loss is lowest at 30–60 /s).
 #[test]
-fn issue6_learnt_drag_moves_toward_the_hidden_drag() {
+fn learnt_drag_moves_toward_the_hidden_drag() {
     let dir = tempfile::tempdir().expect("temp dir");
     let hidden: f64 = 60.0;
     let (bundle, _, truth_start) = truth_start(dir.path(), &format!("air_drag:{hidden}"));
@@ -158,7 +158,7 @@ fn issue6_learnt_drag_moves_toward_the_hidden_drag() {
 /// started on either side move μ toward 0.3 (its gradient flows through
 /// the floor's sliding nodes).
 #[test]
-fn issue6_learnt_friction_moves_toward_the_train_loss_minimum() {
+fn learnt_friction_moves_toward_the_train_loss_minimum() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, _, truth_start) = truth_start(dir.path(), "floor_friction:0.8");
     assert_coefficient_moves_toward(
@@ -175,7 +175,7 @@ fn issue6_learnt_friction_moves_toward_the_train_loss_minimum() {
 /// Issue 6: a fit started with the hidden tilt's angle but an azimuth
 /// 60° off turns gravity toward the hidden direction.
 #[test]
-fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
+fn learnt_tilt_turns_toward_the_hidden_tilt() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, truth, mut model) = truth_start(dir.path(), "ground_tilt:8");
     let params = &truth.effect.as_ref().expect("hidden effect").params;
@@ -208,7 +208,7 @@ fn issue6_learnt_tilt_turns_toward_the_hidden_tilt() {
 /// included (its Adam holds the network's group alone, so the tilt's own
 /// rate must stay out of it).
 #[test]
-fn issue6_tilted_start_fits_through_the_residual_stage() {
+fn tilted_start_fits_through_the_residual_stage() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     let mut options = common::fit_options(&["--residual", "pgnd"]);
@@ -261,7 +261,7 @@ const HIDDEN_EXCESS: f64 = 3.0;
 /// falling past the hidden excess, 8.26e-5 m² at 3 and 8.15e-5 at 5, as it
 /// rises with drag whatever drag is hidden.)
 #[test]
-fn issue6_learnt_density_excess_moves_toward_the_hidden_gradient() {
+fn learnt_density_excess_moves_toward_the_hidden_gradient() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, start) = density_start(dir.path());
     let from = HIDDEN_EXCESS / 3.0;
@@ -299,7 +299,7 @@ fn issue6_learnt_density_excess_moves_toward_the_hidden_gradient() {
 /// 5.48e-8 at step 0.005, 4.42e-8 at 0.01, 4.17e-8 at 0.02; least-squares
 /// slopes over ±0.02, 4.3–4.7e-8.
 #[test]
-fn issue6_extension_gradients_match_finite_differences_of_the_train_loss() {
+fn extension_gradients_match_finite_differences_of_the_train_loss() {
     const LOSS_FD_RTOL: f64 = 0.02;
     const AXIS_LOSS_FD_RTOL: f64 = 0.15;
     let dir = tempfile::tempdir().expect("temp dir");

@@ -23,7 +23,7 @@ fn fit(
 }
 
 #[test]
-fn issue3_gain_search_chooses_the_grasp_radius_only_when_asked() {
+fn gain_search_chooses_the_grasp_radius_only_when_asked() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     let default_radius = dm_mpm::ActuatorConfig::default().grasp_radius;

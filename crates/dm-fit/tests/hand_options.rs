@@ -48,7 +48,7 @@ fn drive_error(model: &WorldModel, bundle: &Bundle, truth: &TruthFile) -> f64 {
 }
 
 #[test]
-fn issue3_hand_smoothing_brings_the_drive_closer_to_the_scripted_hands() {
+fn hand_smoothing_brings_the_drive_closer_to_the_scripted_hands() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, truth) = scene(dir.path());
     let raw = model(&bundle, 0.0).expect("model");
@@ -72,7 +72,7 @@ fn issue3_hand_smoothing_brings_the_drive_closer_to_the_scripted_hands() {
 }
 
 #[test]
-fn issue3_bad_hand_smoothing_is_refused_naming_the_flag() {
+fn bad_hand_smoothing_is_refused_naming_the_flag() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, _) = scene(dir.path());
     for sigma in [-1.0, f64::NAN, 1e3] {
@@ -82,7 +82,7 @@ fn issue3_bad_hand_smoothing_is_refused_naming_the_flag() {
 }
 
 #[test]
-fn issue6_grasp_radius_sets_the_grip_and_bad_values_are_refused() {
+fn grasp_radius_sets_the_grip_and_bad_values_are_refused() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, _) = scene(dir.path());
     let with_radius = |grasp_radius| {

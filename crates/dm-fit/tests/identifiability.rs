@@ -9,7 +9,7 @@ use dm_fit::run::run_fit;
 use dm_model::WorldModel;
 
 #[test]
-fn issue3_fit_report_bounds_the_parameters_only_when_asked() {
+fn fit_report_bounds_the_parameters_only_when_asked() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
 
@@ -44,7 +44,7 @@ fn issue3_fit_report_bounds_the_parameters_only_when_asked() {
 }
 
 #[test]
-fn issue3_bound_scales_with_the_track_noise() {
+fn bound_scales_with_the_track_noise() {
     // Without offsets the information is J^T J / σ²: twice the noise,
     // twice every bound (the same rollouts, so only rounding differs).
     let dir = tempfile::tempdir().expect("temp dir");

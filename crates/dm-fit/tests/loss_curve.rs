@@ -14,7 +14,7 @@ fn green_columns(image: &image::RgbImage) -> Vec<u32> {
 }
 
 #[test]
-fn issue4_loss_curve_marks_the_kept_residual_network() {
+fn loss_curve_marks_the_kept_residual_network() {
     let losses: Vec<f64> = (0..10).map(|i| 1e-4 / (1.0 + i as f64)).collect();
     let late: Vec<f64> = losses.iter().map(|l| 0.9 * l).collect();
     let plain = loss_curve(&losses, &late, &[3, 5], None, None).expect("chart");
@@ -34,7 +34,7 @@ fn issue4_loss_curve_marks_the_kept_residual_network() {
 }
 
 #[test]
-fn issue4_loss_curve_title_says_whether_the_check_kept_the_network() {
+fn loss_curve_title_says_whether_the_check_kept_the_network() {
     let check = |gain: f64| ResidualCheck {
         track_with: 1e-2 * (1.0 - gain),
         track_without: 1e-2,

@@ -7,7 +7,7 @@ use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_synth::{Action, Preset, SynthConfig};
 
 #[test]
-fn issue3_material_stage_lowers_loss_and_moves_youngs_towards_truth() {
+fn material_stage_lowers_loss_and_moves_youngs_towards_truth() {
     let dir = tempfile::tempdir().expect("temp dir");
     let mut config = SynthConfig::tiny(Preset::Rope, 21);
     config.homogeneous = true;

@@ -59,7 +59,7 @@ fn assert_close(recorded: f64, recomputed: f64, what: &str) {
 }
 
 #[test]
-fn issue4_residual_check_drops_a_network_that_gains_too_little_and_keeps_one_that_gains_enough() {
+fn residual_check_drops_a_network_that_gains_too_little_and_keeps_one_that_gains_enough() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
 
@@ -166,7 +166,7 @@ fn issue4_residual_check_drops_a_network_that_gains_too_little_and_keeps_one_tha
 }
 
 #[test]
-fn issue4_residual_min_gain_outside_0_to_1_is_refused() {
+fn residual_min_gain_outside_0_to_1_is_refused() {
     for value in ["-0.1", "1", "1.5", "NaN", "a"] {
         let flag = format!("--residual-min-gain={value}");
         let error =

@@ -13,7 +13,7 @@ use dm_model::WorldModel;
 const SAME_ROLLOUT_RELATIVE: f64 = 1e-9;
 
 #[test]
-fn issue4_residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
+fn residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     // At 6× the default step the stage's first step overshoots (late-frames
@@ -74,7 +74,7 @@ fn issue4_residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
 }
 
 #[test]
-fn issue4_late_frames_loss_averages_the_last_three_tenths() {
+fn late_frames_loss_averages_the_last_three_tenths() {
     let losses: Vec<f64> = (1..=10).map(f64::from).collect();
     assert_eq!(late_frames_loss(&losses), (8.0 + 9.0 + 10.0) / 3.0);
     assert_eq!(late_frames_loss(&[2.0]), 2.0);

@@ -28,7 +28,7 @@ const FD_REL_TOL: f64 = 0.1;
 /// stay the identity, so the stop-gradient on them is exact and the
 /// directional derivative of the whole term must match central differences.
 #[test]
-fn issue7_rgb_term_gradient_matches_finite_differences_along_a_translation() {
+fn rgb_term_gradient_matches_finite_differences_along_a_translation() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = dir.path().join("scene");
     // Larger images than `tiny`'s 48×36: more pixels average the L1 kinks.

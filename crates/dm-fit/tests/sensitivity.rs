@@ -8,7 +8,7 @@ use dm_fit::sensitivity::moved_material;
 use dm_model::WorldModel;
 
 #[test]
-fn issue3_moved_material_scales_e_and_shifts_nu_inside_the_bounds() {
+fn moved_material_scales_e_and_shifts_nu_inside_the_bounds() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     let options = common::fit_options(&["--residual", "none"]);
@@ -33,7 +33,7 @@ fn issue3_moved_material_scales_e_and_shifts_nu_inside_the_bounds() {
 }
 
 #[test]
-fn issue3_fit_report_has_the_material_sensitivity() {
+fn fit_report_has_the_material_sensitivity() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     let options = common::fit_options(&["--residual", "none"]);

@@ -123,7 +123,7 @@ fn forward(net: &Residual, probe: &ParticleGrads<f64>) -> f64 {
 }
 
 #[test]
-fn issue4_residual_gradient_through_the_physics_matches_finite_differences() {
+fn residual_gradient_through_the_physics_matches_finite_differences() {
     let mut net = network(&world());
     let n = world().particle_count();
     let probe = probe(n);

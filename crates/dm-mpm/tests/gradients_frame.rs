@@ -115,7 +115,7 @@ fn check(name: &str, analytic: f64, eval: &mut dyn FnMut(f64) -> f64) {
 }
 
 #[test]
-fn issue3_frame_adjoint_with_actuators_matches_finite_differences() {
+fn frame_adjoint_with_actuators_matches_finite_differences() {
     let mut w = world();
     let n = w.particle_count();
     assert!(
@@ -248,7 +248,7 @@ fn check_gravity(
 }
 
 #[test]
-fn issue3_truncated_window_records_only_the_last_substeps() {
+fn truncated_window_records_only_the_last_substeps() {
     let mut w = world();
     let tape = w
         .step_frame_taped(&FROM, &anchors_to(), &[true, true], 3)
@@ -268,7 +268,7 @@ fn issue3_truncated_window_records_only_the_last_substeps() {
 /// frame's start state, one particle pushed against the position clip so
 /// that the clipped branch is exercised too.
 #[test]
-fn issue3_velocity_correction_after_a_frame_matches_finite_differences() {
+fn velocity_correction_after_a_frame_matches_finite_differences() {
     let mut w = world();
     let n = w.particle_count();
     let start = w.state();
@@ -326,7 +326,7 @@ fn issue3_velocity_correction_after_a_frame_matches_finite_differences() {
 }
 
 #[test]
-fn issue3_non_finite_velocity_correction_is_refused() {
+fn non_finite_velocity_correction_is_refused() {
     let mut w = world();
     let mut dv = vec![[0.0; 3]; w.particle_count()];
     dv[3][1] = f64::NAN;
@@ -343,7 +343,7 @@ fn issue3_non_finite_velocity_correction_is_refused() {
 /// Issue 6: the effect coefficients a fit learns (drag k₁, k₂ and the
 /// viscosity η) through a whole frame, actuators coupled.
 #[test]
-fn issue6_frame_adjoint_of_effect_coefficients_matches_finite_differences() {
+fn frame_adjoint_of_effect_coefficients_matches_finite_differences() {
     let mut w = world();
     // dt η / (ρ dx²) ≈ 3 at 16³ (dx 3.1 cm, ρ 1000): the implicit viscous
     // solve dominates the nodes' inertia, as on the truth scenes.
@@ -439,7 +439,7 @@ const FRICTION_DRIFT: [f64; 3] = [0.4, 0.2, -0.3];
 /// frame's sum of μ̄ over its substeps, actuators coupled), and the state
 /// adjoint through the sliding floor.
 #[test]
-fn issue6_frame_adjoint_of_floor_friction_matches_finite_differences() {
+fn frame_adjoint_of_floor_friction_matches_finite_differences() {
     let mut w = world_with(|config| {
         config.floor = Some(dm_mpm::FloorConfig {
             up: [0.0, 0.0, 1.0],

@@ -378,20 +378,20 @@ fn check_scene(seed: u64, s: Scene) {
 }
 
 #[test]
-fn issue3_substep_adjoint_matches_finite_differences_mixture() {
+fn substep_adjoint_matches_finite_differences_mixture() {
     check_all_inputs(1, false);
     check_all_inputs(2, false);
 }
 
 #[test]
-fn issue3_substep_adjoint_matches_finite_differences_neo_hookean() {
+fn substep_adjoint_matches_finite_differences_neo_hookean() {
     check_all_inputs(3, true);
 }
 
 /// Issue 6: the floor's Coulomb friction in the grid update's adjoint,
 /// floor nodes mostly sliding (μ = 0.5).
 #[test]
-fn issue6_substep_adjoint_matches_finite_differences_floor_sliding() {
+fn substep_adjoint_matches_finite_differences_floor_sliding() {
     check_scene(
         3,
         scene_with(
@@ -408,7 +408,7 @@ fn issue6_substep_adjoint_matches_finite_differences_floor_sliding() {
 /// The same floor with floor nodes mostly sticking (μ = 5): nothing flows
 /// back through a sticking node.
 #[test]
-fn issue6_substep_adjoint_matches_finite_differences_floor_sticking() {
+fn substep_adjoint_matches_finite_differences_floor_sticking() {
     check_scene(
         4,
         scene_with(
@@ -425,7 +425,7 @@ fn issue6_substep_adjoint_matches_finite_differences_floor_sticking() {
 /// Sliding on the floor without the viscous solve: the grid update's
 /// adjoint takes its other path, which sums μ̄ on its own.
 #[test]
-fn issue6_substep_adjoint_matches_finite_differences_floor_sliding_inviscid() {
+fn substep_adjoint_matches_finite_differences_floor_sliding_inviscid() {
     check_scene(
         6,
         scene_with(
@@ -441,7 +441,7 @@ fn issue6_substep_adjoint_matches_finite_differences_floor_sliding_inviscid() {
 
 /// The frictionless floor (projection only), for comparison.
 #[test]
-fn issue6_substep_adjoint_matches_finite_differences_floor_frictionless() {
+fn substep_adjoint_matches_finite_differences_floor_frictionless() {
     check_scene(
         5,
         scene_with(

@@ -679,7 +679,7 @@ fn late_peak_kinetic_energy(viscosity: f64, v0: impl Fn(&[f64; 3]) -> [f64; 3]) 
 }
 
 #[test]
-fn issue6_implicit_viscosity_damps_deformation_but_not_rigid_spin() {
+fn implicit_viscosity_damps_deformation_but_not_rigid_spin() {
     // The elastic block's stretch oscillates (period ≈ 2L/c ≈ 6 frames);
     // at η = 2000 Pa·s (dt η/(ρ dx²) ≈ 0.3 per substep, 50× what explicit
     // viscous stress could take) the motion is overdamped within a frame.
@@ -739,7 +739,7 @@ fn a_material_too_stiff_for_the_grid_is_refused_not_run_forever() {
 /// A rigid translation carries no stress, so after one frame its velocity
 /// is v₀ times the frame's damping alone, whatever the material.
 #[test]
-fn issue3_grid_damping_per_second_does_not_depend_on_stiffness() {
+fn grid_damping_per_second_does_not_depend_on_stiffness() {
     let mut config = free_space_config();
     config.gravity = [0.0; 3];
     config.grid_damping = 0.999;

@@ -568,7 +568,7 @@ mod tests {
     /// anchor keeps the last frame as accurate as the first step, and the
     /// warped window, needless on a plain shift, does not take over.
     #[test]
-    fn issue8_anchoring_to_the_first_frame_stops_drift() {
+    fn anchoring_to_the_first_frame_stops_drift() {
         const FRAMES: usize = 60;
         const STEP_PX: [f32; 2] = [0.37, -0.21];
         const NOISE_GREY: f32 = 20.0;

@@ -169,12 +169,12 @@ fn vjp_matches_finite_differences(kind: ResidualKind, particles: usize) {
 }
 
 #[test]
-fn issue4_pgnd_vjp_matches_finite_differences() {
+fn pgnd_vjp_matches_finite_differences() {
     vjp_matches_finite_differences(ResidualKind::Pgnd, 40);
 }
 
 #[test]
-fn issue4_mlp_vjp_matches_finite_differences() {
+fn mlp_vjp_matches_finite_differences() {
     vjp_matches_finite_differences(ResidualKind::Mlp, 40);
 }
 
@@ -215,7 +215,7 @@ fn zero_widths_and_far_particles_are_refused() {
 }
 
 #[test]
-fn issue4_velocity_correction_never_exceeds_alpha() {
+fn velocity_correction_never_exceeds_alpha() {
     for kind in [ResidualKind::Pgnd, ResidualKind::Mlp] {
         // Huge weights and inputs saturate the bound.
         let net = randomised(kind, Precision::F32, 20.0);
@@ -239,14 +239,14 @@ fn issue4_velocity_correction_never_exceeds_alpha() {
 }
 
 #[test]
-fn issue4_untrained_residual_changes_nothing() {
+fn untrained_residual_changes_nothing() {
     let net = Residual::new(spec(ResidualKind::Pgnd), Precision::F32).expect("network");
     let dv = net.predict(&cloud(50, 1)).expect("predict");
     assert!(dv.iter().flatten().all(|&c| c == 0.0));
 }
 
 #[test]
-fn issue4_weights_round_trip_and_bad_files_are_named() {
+fn weights_round_trip_and_bad_files_are_named() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("residual.safetensors");
     let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.3);
@@ -277,7 +277,7 @@ fn issue4_weights_round_trip_and_bad_files_are_named() {
 }
 
 #[test]
-fn issue4_bad_inputs_name_the_field() {
+fn bad_inputs_name_the_field() {
     let net = Residual::new(spec(ResidualKind::Mlp), Precision::F32).expect("network");
     let mut inputs = cloud(10, 4);
     inputs.v_tilde[3][0] = f64::NAN;
@@ -297,7 +297,7 @@ fn issue4_bad_inputs_name_the_field() {
 }
 
 #[test]
-fn issue4_prediction_is_independent_of_thread_count() {
+fn prediction_is_independent_of_thread_count() {
     let net = randomised(ResidualKind::Pgnd, Precision::F32, 0.3);
     let inputs = cloud(2000, 8);
     let run = |threads: usize| {
@@ -314,7 +314,7 @@ fn issue4_prediction_is_independent_of_thread_count() {
 /// learning rate (5e-3) whatever the gradient; from the fresh network that
 /// must give a small correction, not the 0.8 m/s that blew a rope fit up.
 #[test]
-fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
+fn one_adam_sized_step_from_fresh_weights_stays_small() {
     // The method's sizes: the blow-up grows with the decoder's width.
     let method_sized = ResidualSpec {
         size: NetworkSize::default(),
@@ -345,7 +345,7 @@ fn issue4_one_adam_sized_step_from_fresh_weights_stays_small() {
 /// ratio of two such numbers, whose derivative overflowed. The VJP must
 /// stay finite.
 #[test]
-fn issue4_vjp_is_finite_where_a_node_gets_a_vanishing_spline_weight() {
+fn vjp_is_finite_where_a_node_gets_a_vanishing_spline_weight() {
     let s = spec(ResidualKind::Pgnd);
     let mut inputs = cloud(40, 5);
     // Grid coordinate 14.5 − 1.6e-6 on every axis (after f32 rounding):

@@ -36,7 +36,7 @@ fn max_abs(g: &[[f64; 3]]) -> f64 {
 }
 
 #[test]
-fn issue7_ssim_gradient_matches_finite_differences() {
+fn ssim_gradient_matches_finite_differences() {
     let (w, h) = (24, 20);
     let x = random_image(1, w * h);
     // y correlated with x so the covariance terms are not negligible.
@@ -73,7 +73,7 @@ fn issue7_ssim_gradient_matches_finite_differences() {
 }
 
 #[test]
-fn issue7_masked_view_loss_gradient_matches_finite_differences() {
+fn masked_view_loss_gradient_matches_finite_differences() {
     let (w, h) = (20, 16);
     let cam = camera(w as u32, h as u32);
     let rendered = random_image(3, w * h);
@@ -145,7 +145,7 @@ fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 /// from the same Gaussians with means moved by ~1 cm, scales halved and
 /// grey colours, and must get both views above a PSNR it started far below.
 #[test]
-fn issue7_fit_recovers_target_images() {
+fn fit_recovers_target_images() {
     let mut r = rng(11);
     let truth = random_gaussians(&mut r, 40, (0.6, 0.95)).cast::<f32>();
     let settings = RenderSettings::default();

@@ -460,7 +460,7 @@ mod tests {
     }
 
     #[test]
-    fn issue6_friction_scenes_are_filmed_with_a_push() {
+    fn friction_scenes_are_filmed_with_a_push() {
         let mut friction_draws = 0;
         for seed in 0..300 {
             let (config, effect) = scene_config(seed, false, Engine::Mpm);
@@ -477,7 +477,7 @@ mod tests {
     }
 
     #[test]
-    fn issue6_scene_variant_names_and_applies_each_setting() {
+    fn scene_variant_names_and_applies_each_setting() {
         let (base_config, _) = scene_config(1031, false, Engine::Mpm);
         let base_fit = evaluation_fit_options();
         // The default variant is the evaluation itself.

@@ -5,7 +5,7 @@
 //! * [`diagnosis_evaluation`]: scenes with a seeded hidden effect (or
 //!   none) synthesised, fitted and diagnosed, the named causes tabulated
 //!   against the hidden ones (`examples/diagnose_eval.rs`, the integration
-//!   test `tests/issue6_diagnose.rs`).
+//!   test `tests/diagnose.rs`).
 //! * [`detection_limits`]: an effect hidden at multiples of the limit the
 //!   diagnosis reported on the scene's null twin
 //!   (`examples/detection_limits_eval.rs`).

@@ -34,7 +34,7 @@ const DENSITY_FACTOR_ATOL: f64 = 1e-9;
 /// gradient its axis and heavy end, the lag its frames; a scene without an
 /// effect is refused, naming the field.
 #[test]
-fn issue6_oracle_reads_the_truth_effect_as_its_candidate() {
+fn oracle_reads_the_truth_effect_as_its_candidate() {
     let fps = 30.0;
     // A tiny cloth with `effect` hidden: its model, its truth file, and
     // what the oracle reads from the truth.

@@ -259,7 +259,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn issue6_every_library_name_parses_with_its_default() {
+    fn every_library_name_parses_with_its_default() {
         for name in EffectName::ALL {
             let spec: EffectSpec = name.name().parse().expect("known name");
             assert_eq!(spec.magnitude, name.default_magnitude());
@@ -276,7 +276,7 @@ mod tests {
     }
 
     #[test]
-    fn issue6_hidden_effect_draws_are_seeded_and_in_range() {
+    fn hidden_effect_draws_are_seeded_and_in_range() {
         let mut seen = std::collections::BTreeSet::new();
         for seed in 0..200 {
             let (preset, spec) = draw_hidden_effect(seed);

@@ -664,7 +664,7 @@ mod tests {
     /// mesh covers the shape: each truth particle lies within a voxel's
     /// reach of a vertex.
     #[test]
-    fn issue39_toy_tetrahedra_are_oriented_and_cover_the_shape() {
+    fn toy_tetrahedra_are_oriented_and_cover_the_shape() {
         let mesh = FlexMesh::for_preset(Preset::Toy);
         assert!(
             mesh.elements.len() > 500,
@@ -691,7 +691,7 @@ mod tests {
     /// Each hand holds a handful of vertices around its grasp point, for
     /// every preset and action.
     #[test]
-    fn issue39_hands_hold_vertices_near_their_grasp() {
+    fn hands_hold_vertices_near_their_grasp() {
         for preset in [Preset::Rope, Preset::Cloth, Preset::Toy] {
             let mesh = FlexMesh::for_preset(preset);
             for action in crate::Action::ALL {

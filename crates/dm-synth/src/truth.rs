@@ -649,7 +649,7 @@ mod tests {
     /// [`WALL_ROOM_M`] inside the walls along the floor, on cells no
     /// coarser than the domain without the room gave.
     #[test]
-    fn issue6_truth_walls_leave_room_around_the_object() {
+    fn truth_walls_leave_room_around_the_object() {
         for preset in [Preset::Rope, Preset::Cloth, Preset::Toy] {
             for action in Action::ALL {
                 let hands = plan(preset, action, false, 1.2);

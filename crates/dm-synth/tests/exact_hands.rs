@@ -22,7 +22,7 @@ fn scene(dir: &std::path::Path, exact_hands: bool) -> (Bundle, dm_synth::TruthFi
 }
 
 #[test]
-fn issue6_exact_hands_records_the_scripted_anchors_and_changes_nothing_else() {
+fn exact_hands_records_the_scripted_anchors_and_changes_nothing_else() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (noisy, _) = scene(dir.path(), false);
     let (exact, truth) = scene(dir.path(), true);

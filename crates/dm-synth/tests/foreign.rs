@@ -34,7 +34,7 @@ fn largest_difference(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
 }
 
 #[test]
-fn issue39_foreign_scenes_validate_move_and_repeat_bitwise() {
+fn foreign_scenes_validate_move_and_repeat_bitwise() {
     let dir = tempfile::tempdir().expect("temp dir");
     for (preset, seed) in [(Preset::Rope, 3), (Preset::Cloth, 4), (Preset::Toy, 5)] {
         let config = foreign(preset, seed);
@@ -76,7 +76,7 @@ fn issue39_foreign_scenes_validate_move_and_repeat_bitwise() {
 }
 
 #[test]
-fn issue39_a_hidden_effect_reports_how_far_it_moves_the_object() {
+fn a_hidden_effect_reports_how_far_it_moves_the_object() {
     let dir = tempfile::tempdir().expect("temp dir");
     let null = foreign(Preset::Rope, 7);
     let tilted = SynthConfig {
@@ -99,7 +99,7 @@ fn issue39_a_hidden_effect_reports_how_far_it_moves_the_object() {
 }
 
 #[test]
-fn issue39_effects_the_engine_cannot_express_are_refused_before_anything_runs() {
+fn effects_the_engine_cannot_express_are_refused_before_anything_runs() {
     let dir = tempfile::tempdir().expect("temp dir");
     // A configuration MuJoCo cannot express is refused before anything runs.
     let plastic = SynthConfig {

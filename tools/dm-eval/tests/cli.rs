@@ -39,7 +39,7 @@ fn run_eval(model: &Path, scene: &Path, out: &Path, extra: &[&str]) -> std::proc
 const METRICS: [&str; 6] = ["chamfer", "track", "iou", "psnr", "ssim", "lpips"];
 
 #[test]
-fn issue5_eval_writes_metrics_table_and_plots() {
+fn eval_writes_metrics_table_and_plots() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (scene, model) = tiny_scene_and_model(dir.path());
     let out = dir.path().join("eval");
@@ -89,7 +89,7 @@ fn issue5_eval_writes_metrics_table_and_plots() {
 }
 
 #[test]
-fn issue5_eval_names_the_missing_model_file_and_writes_nothing() {
+fn eval_names_the_missing_model_file_and_writes_nothing() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (scene, _) = tiny_scene_and_model(dir.path());
     let out = dir.path().join("eval");
@@ -103,7 +103,7 @@ fn issue5_eval_names_the_missing_model_file_and_writes_nothing() {
 }
 
 #[test]
-fn issue5_eval_rejects_a_missing_camera_and_skips_lpips_only_when_asked() {
+fn eval_rejects_a_missing_camera_and_skips_lpips_only_when_asked() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (scene, model) = tiny_scene_and_model(dir.path());
     let out = dir.path().join("eval");
@@ -147,7 +147,7 @@ fn issue5_eval_rejects_a_missing_camera_and_skips_lpips_only_when_asked() {
 /// says so in `run.renderer`, and its frame-0 PSNR on camera 0 is the one
 /// the fit recorded; without, it draws particle spheres.
 #[test]
-fn issue7_eval_uses_the_fitted_splats_when_present() {
+fn eval_uses_the_fitted_splats_when_present() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (scene, model_dir) = tiny_scene_and_model(dir.path());
     let no_cache = dir.path().join("no-cache");

@@ -32,7 +32,7 @@ type Corruption = Box<dyn Fn(&mut serde_json::Value)>;
 const METRICS: [&str; 5] = ["chamfer", "track", "iou", "psnr", "ssim"];
 
 #[test]
-fn issue5_ci_suite_runs_resumes_and_writes_tables() {
+fn ci_suite_runs_resumes_and_writes_tables() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("suite");
     let results = dir.path().join("RESULTS.md");
@@ -151,7 +151,7 @@ fn issue5_ci_suite_runs_resumes_and_writes_tables() {
 }
 
 #[test]
-fn issue5_bad_suite_file_names_file_and_field() {
+fn bad_suite_file_names_file_and_field() {
     let dir = tempfile::tempdir().expect("temp dir");
     let ci: serde_json::Value = read_json(&ci_suite());
     let cases: [(&str, Corruption, &str); 3] = [
@@ -198,7 +198,7 @@ fn issue5_bad_suite_file_names_file_and_field() {
 /// its held-out frames better than the untrained model. Needs the Python
 /// named by DM_MUJOCO_PYTHON (`make test` sets it).
 #[test]
-fn issue39_foreign_ci_suite_generates_fits_and_evaluates() {
+fn foreign_ci_suite_generates_fits_and_evaluates() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("suite");
     let suite = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../benchmarks/foreign-ci.json");

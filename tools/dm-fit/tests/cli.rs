@@ -61,7 +61,7 @@ fn tiny_scene(dir: &Path, preset: Preset, seed: u64) -> PathBuf {
 }
 
 #[test]
-fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
+fn fit_reports_contract_keys_and_resumes_exactly() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path(), Preset::Cloth, 4);
 
@@ -135,7 +135,7 @@ fn issue3_fit_reports_contract_keys_and_resumes_exactly() {
 }
 
 #[test]
-fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
+fn resume_refuses_a_checkpoint_made_with_other_options() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path(), Preset::Rope, 4);
     let out = dir.path().join("model");
@@ -155,7 +155,7 @@ fn issue3_resume_refuses_a_checkpoint_made_with_other_options() {
 /// stage 2 with the physics frozen: the material fields equal those of the
 /// same fit without the stage, the network's weights do not.
 #[test]
-fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
+fn residual_stage_trains_the_network_and_leaves_the_physics() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path(), Preset::Rope, 5);
     let without = dir.path().join("without");
@@ -207,7 +207,7 @@ fn issue4_residual_stage_trains_the_network_and_leaves_the_physics() {
 /// `--identifiability`: the Cramér–Rao bound is printed, one
 /// entry per parameter, and a bad noise value is refused naming the flag.
 #[test]
-fn issue3_identifiability_is_printed_and_bad_noise_refused() {
+fn identifiability_is_printed_and_bad_noise_refused() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path(), Preset::Rope, 4);
     let stages = [
@@ -251,7 +251,7 @@ fn issue3_identifiability_is_printed_and_bad_noise_refused() {
 /// A bad `--hand-smoothing` stops dm-fit before any work, naming the flag,
 /// and leaves no model directory behind.
 #[test]
-fn issue3_bad_hand_smoothing_is_refused() {
+fn bad_hand_smoothing_is_refused() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path(), Preset::Rope, 4);
     let out = dir.path().join("refused");

@@ -188,7 +188,7 @@ fn rerun_clip(dir: &Path, models: &Path, extra: &[&str]) -> (Output, PathBuf) {
 }
 
 #[test]
-fn issue8_monocular_clip_without_its_model_names_the_manifest_entry() {
+fn monocular_clip_without_its_model_names_the_manifest_entry() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (output, out) = prepare_clip(dir.path(), &dir.path().join("no-models"), &[]);
     let stderr = String::from_utf8_lossy(&output.stderr);
@@ -207,7 +207,7 @@ fn issue8_monocular_clip_without_its_model_names_the_manifest_entry() {
 }
 
 #[test]
-fn issue8_monocular_clip_runs_through_the_fixture_depth_network() {
+fn monocular_clip_runs_through_the_fixture_depth_network() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (output, out) = prepare_clip(
         dir.path(),
@@ -269,7 +269,7 @@ fn write_bright_clip_with_depth(dir: &Path) -> (PathBuf, PathBuf) {
 /// cotracker3`): a clip runs through the fixture SAM 2 and CoTracker3
 /// models, and the bundle's provenance says so.
 #[test]
-fn issue8_clip_runs_through_the_fixture_segmenter_and_tracker() {
+fn clip_runs_through_the_fixture_segmenter_and_tracker() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (clip, depth) = write_bright_clip_with_depth(dir.path());
     let out = dir.path().join("bundle");
@@ -305,7 +305,7 @@ fn issue8_clip_runs_through_the_fixture_segmenter_and_tracker() {
 /// A chosen ONNX stage whose model file is absent stops with the manifest
 /// entry named, and writes no bundle.
 #[test]
-fn issue8_missing_segmenter_names_its_manifest_entry() {
+fn missing_segmenter_names_its_manifest_entry() {
     let dir = tempfile::tempdir().expect("temp dir");
     let models = dir.path().join("models");
     copy_tree(&fixtures().join("models"), &models);
@@ -338,7 +338,7 @@ fn issue8_missing_segmenter_names_its_manifest_entry() {
 /// written ARAP pose is the planted one (the library test checks the
 /// issue's 2° / 5 mm bound on two poses; this checks the command's files).
 #[test]
-fn issue8_prior_command_writes_the_planted_pose() {
+fn prior_command_writes_the_planted_pose() {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
     let dir = tempfile::tempdir().expect("temp dir");
     let mesh = fixtures().join("meshes/textured_box.glb");

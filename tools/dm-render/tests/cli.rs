@@ -41,7 +41,7 @@ fn run_render(model: &Path, args: &[&str]) -> std::process::Output {
 }
 
 #[test]
-fn issue7_render_writes_frames_video_and_rejects_bad_input() {
+fn render_writes_frames_video_and_rejects_bad_input() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (scene, model) = tiny_scene_and_fitted_model(dir.path());
     let scene_arg = scene.to_str().expect("utf-8 path");

@@ -28,7 +28,7 @@ fn run_sim(scene: &Path, out: &Path) -> std::process::Output {
 }
 
 #[test]
-fn issue2_sim_rolls_out_and_summarises() {
+fn sim_rolls_out_and_summarises() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path());
     let out = dir.path().join("sim");
@@ -59,7 +59,7 @@ fn issue2_sim_rolls_out_and_summarises() {
 }
 
 #[test]
-fn issue2_sim_names_file_and_field_of_a_corrupted_bundle() {
+fn sim_names_file_and_field_of_a_corrupted_bundle() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = tiny_scene(dir.path());
     let points = scene.join("tracks/object_points.npy");

@@ -55,7 +55,7 @@ fn tree(root: &Path) -> Vec<(String, Vec<u8>)> {
 }
 
 #[test]
-fn issue2_synth_is_deterministic_across_thread_counts() {
+fn synth_is_deterministic_across_thread_counts() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
     let out_a = synth(&a, &["--effect", "air_drag"], "1");
@@ -99,7 +99,7 @@ fn issue2_synth_is_deterministic_across_thread_counts() {
 }
 
 #[test]
-fn issue2_synth_rejects_unknown_effect_and_writes_nothing() {
+fn synth_rejects_unknown_effect_and_writes_nothing() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("scene");
     let result = synth(&out, &["--effect", "moon_gravity"], "2");
@@ -113,7 +113,7 @@ fn issue2_synth_rejects_unknown_effect_and_writes_nothing() {
 }
 
 #[test]
-fn issue2_synth_refuses_to_overwrite_an_existing_bundle() {
+fn synth_refuses_to_overwrite_an_existing_bundle() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("scene");
     std::fs::create_dir(&out).expect("mkdir");

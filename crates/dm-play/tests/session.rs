@@ -48,7 +48,7 @@ fn ends(session: &Session) -> ([f64; 3], [f64; 3]) {
 }
 
 #[test]
-fn issue9_grab_and_move_a_hand_moves_the_object() {
+fn grab_and_move_a_hand_moves_the_object() {
     let tiny = common::tiny_model(false);
     let mut session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
     let up = session.view().up;
@@ -78,7 +78,7 @@ fn issue9_grab_and_move_a_hand_moves_the_object() {
 }
 
 #[test]
-fn issue9_pick_misses_off_the_object() {
+fn pick_misses_off_the_object() {
     let tiny = common::tiny_model(false);
     let session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
     let up = session.view().up;
@@ -122,7 +122,7 @@ fn pull_apart(e_scale: f64, speed: f64, frames: usize) -> (Vec<usize>, Vec<usize
 }
 
 #[test]
-fn issue9_a_strong_pull_tears_the_object() {
+fn a_strong_pull_tears_the_object() {
     // The same two-hand pull (each hand 0.3 m/s outwards for 10 frames,
     // 20 cm of stretch on a 22 cm toy) at E x0.3 and E x3. Under this much
     // stretch the rigid grip patches pull out of the object at any E (the
@@ -160,7 +160,7 @@ fn issue9_a_strong_pull_tears_the_object() {
 }
 
 #[test]
-fn issue9_recording_is_a_valid_bundle() {
+fn recording_is_a_valid_bundle() {
     let tiny = common::tiny_model(false);
     let mut session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
     let centre = session.view().centre;
@@ -206,7 +206,7 @@ fn issue9_recording_is_a_valid_bundle() {
 }
 
 #[test]
-fn issue9_frame_message_layout() {
+fn frame_message_layout() {
     let tiny = common::tiny_model(true);
     let session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
     let sprites = session.sprites();
@@ -221,7 +221,7 @@ fn issue9_frame_message_layout() {
 }
 
 #[test]
-fn issue9_bad_options_and_commands_are_errors() {
+fn bad_options_and_commands_are_errors() {
     let tiny = common::tiny_model(false);
     let bad = PlayOptions {
         grid: Some(4),

@@ -50,7 +50,7 @@ fn synth_rope_capture(dir: &Path, frames: usize) -> (SynthConfig, PathBuf, PathB
 }
 
 #[test]
-fn issue8_capture_to_bundle_tracks_match_the_truth() {
+fn capture_to_bundle_tracks_match_the_truth() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (config, truth_bundle, capture) = synth_rope_capture(dir.path(), 10);
     assert!(capture.join("cam0/color.mp4").is_file());
@@ -137,7 +137,7 @@ fn issue8_capture_to_bundle_tracks_match_the_truth() {
 /// and the tracks, compared in the camera's frame (the clip's world is its
 /// own), must match the truth within the small-scene bound.
 #[test]
-fn issue8_monocular_clip_with_depth_frames_tracks_match_the_truth() {
+fn monocular_clip_with_depth_frames_tracks_match_the_truth() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (_, truth_bundle, capture) = synth_rope_capture(dir.path(), 10);
     let rig = Calibration::read(&capture).expect("calibration");

@@ -195,7 +195,7 @@ fn save_screenshot(png: &[u8], name: &str) -> PathBuf {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn issue9_playground_in_headless_chromium() {
+async fn playground_in_headless_chromium() {
     let (_driver, driver_port) = start_chromedriver();
     let tiny = common::tiny_model(true);
     let session = open_session(&tiny.model_dir, &PlayOptions::interactive()).expect("session");
@@ -271,7 +271,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     })
     .await?;
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
-    save_screenshot(&png, "issue9_grabbed.png");
+    save_screenshot(&png, "grabbed.png");
 
     // Hold E (hand 1 up) then D (right): the object follows.
     hold_key(client, 'e', 1200).await;
@@ -299,7 +299,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
         ));
     }
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
-    save_screenshot(&png, "issue9_lifted.png");
+    save_screenshot(&png, "lifted.png");
 
     // The fps counter keeps updating: it is recomputed every 0.5 s (its
     // update count rises) and shows a positive rate.
@@ -355,7 +355,7 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
 
     // Young's-modulus colouring on; hand 1 grabs the near side, hand 2 the
     // far side (Shift+click), then both hands pull apart at full speed:
-    // the soft object tears (asserted in issue9_session.rs; here it is
+    // the soft object tears (asserted in session.rs; here it is
     // pictured).
     click_element(client, "show-youngs").await?;
     let right = view.main_right();
@@ -395,10 +395,10 @@ async fn drive(client: &Client, addr: SocketAddr, view: &dm_play::SceneView) -> 
     let pieces = get_json(addr, "/api/components");
     eprintln!("pieces after the E x0.3 pull: {pieces}");
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
-    save_screenshot(&png, "issue9_pulled_youngs.png");
+    save_screenshot(&png, "pulled_youngs.png");
     click_element(client, "show-youngs").await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let png = client.screenshot().await.map_err(|e| e.to_string())?;
-    save_screenshot(&png, "issue9_pulled.png");
+    save_screenshot(&png, "pulled.png");
     Ok(())
 }

@@ -13,7 +13,7 @@ use dm_synth::{Preset, SynthConfig};
 const UNTRAINED_TRACK_ERROR_LIMIT_M: f64 = 0.1;
 
 #[test]
-fn issue2_every_preset_synthesises_validates_and_rolls_out() {
+fn every_preset_synthesises_validates_and_rolls_out() {
     let dir = tempfile::tempdir().expect("temp dir");
     for (i, preset) in [Preset::Rope, Preset::Cloth, Preset::Toy]
         .into_iter()

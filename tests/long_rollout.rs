@@ -105,7 +105,7 @@ fn long_rollout(preset: Preset, kind: ResidualKind, seed: u64) {
 }
 
 #[test]
-fn issue4_pgnd_300_frame_rollouts_stay_finite() {
+fn pgnd_300_frame_rollouts_stay_finite() {
     for (i, preset) in [Preset::Rope, Preset::Cloth, Preset::Toy]
         .into_iter()
         .enumerate()

@@ -30,12 +30,18 @@ fn a_hidden_wind_is_discovered_along_its_direction() {
     let model_dir = common::fit_physics_only(&bundle, 8, &dir.path().join("model"));
 
     let out = dir.path().join("diagnosis");
+    // The discovery starts from the fitted model, whatever the detection
+    // limits find (tests/detectability.rs): skipped.
+    let options = DiagnoseOptions {
+        detect_steps: 0,
+        ..DiagnoseOptions::default()
+    };
     let d = diagnose(
         &model_dir,
         &scene,
         &out,
         Some(&truth_path),
-        &DiagnoseOptions::default(),
+        &options,
         &mut |_, _, _| {},
     )
     .expect("diagnosis");

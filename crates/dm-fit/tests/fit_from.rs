@@ -15,8 +15,7 @@ fn saved(dir: &std::path::Path) -> WorldModel {
 }
 
 #[test]
-fn fit_from_a_starting_model_learns_or_keeps_its_effect_and_matches_run_fit_from_the_default()
- {
+fn fit_from_a_starting_model_learns_or_keeps_its_effect_and_matches_run_fit_from_the_default() {
     let dir = tempfile::tempdir().expect("temp dir");
     let bundle = common::tiny_rope(dir.path());
     let flags = ["--residual", "none"];

@@ -187,6 +187,10 @@ pub struct ClipSummary {
     pub rolled_out: bool,
 }
 
+/// The most frames one render writes: an hour at 30 fps (without a bundle
+/// nothing else bounds the range).
+pub const MAX_RENDER_FRAMES: usize = 108_000;
+
 /// Parses `A:B` (clip frames `A..B`, B exclusive).
 pub fn parse_frame_range(s: &str) -> Result<(usize, usize), String> {
     let bad = || format!("`{s}` is not a frame range: use A:B with A < B (B exclusive), e.g. 0:24");
@@ -197,6 +201,12 @@ pub fn parse_frame_range(s: &str) -> Result<(usize, usize), String> {
     );
     if a >= b {
         return Err(bad());
+    }
+    if b - a > MAX_RENDER_FRAMES {
+        return Err(format!(
+            "`{s}` asks for {} frames, more than the {MAX_RENDER_FRAMES} one render writes",
+            b - a
+        ));
     }
     Ok((a, b))
 }

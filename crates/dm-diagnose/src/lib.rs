@@ -386,7 +386,7 @@ pub fn diagnose(
 ) -> Result<Diagnosis, DiagnoseError> {
     let bundle = Bundle::open(bundle_dir)?;
     let model_path = model_dir.join("model.json");
-    let model: WorldModel = dm_bundle::read_json(&model_path)?;
+    let model = WorldModel::load(&model_path)?;
     let truth_value: Option<serde_json::Value> = truth
         .map(dm_bundle::read_json::<serde_json::Value>)
         .transpose()?;
@@ -968,7 +968,7 @@ fn fit_candidates(
         options.device = device.for_model(&start)?;
         let dir = out.join("candidate_fits").join(name);
         let result = dm_fit::run::run_fit_from(bundle, &options, start, &dir, &mut |_| {})
-            .and_then(|_| Ok(dm_bundle::read_json::<WorldModel>(&dir.join("model.json"))?));
+            .and_then(|_| Ok(WorldModel::load(&dir.join("model.json"))?));
         match result {
             Ok(model) => fitted.push(CandidateFit {
                 name,

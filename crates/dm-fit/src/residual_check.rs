@@ -110,7 +110,7 @@ pub fn check_residual(
         FitOutcome::Finished(_) => {}
         FitOutcome::Paused { .. } => unreachable!("a fit without a step limit runs to the end"),
     }
-    let physics_only: Checkpoint = dm_bundle::read_json(&dir.join(crate::run::CHECKPOINT_FILE))?;
+    let physics_only = Checkpoint::load(&dir.join(crate::run::CHECKPOINT_FILE))?;
     let track_with = train_track(fitted, bundle, options)?;
     let track_without = train_track(&physics_only.model, bundle, options)?;
     let gain = 1.0 - track_with / track_without;

@@ -17,7 +17,7 @@ use crate::residual_check::{ResidualCheck, check_residual, physics_only_options}
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
-use dm_bundle::{Bundle, write_file_atomic, write_json_atomic, write_npy_file};
+use dm_bundle::{Bundle, BundleError, write_file_atomic, write_json_atomic, write_npy_file};
 use dm_model::device::Device;
 use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use rayon::prelude::*;
@@ -282,6 +282,22 @@ pub struct Checkpoint {
     /// stages.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub residual_check: Option<ResidualCheck>,
+}
+
+impl Checkpoint {
+    /// Reads a checkpoint file and checks that its model's parts agree and
+    /// its optimiser's settings are valid; errors name the file and field.
+    pub fn load(path: &Path) -> Result<Self, FitError> {
+        let saved: Self = dm_bundle::read_json(path)?;
+        saved.model.check_consistent().map_err(|(field, problem)| {
+            BundleError::new(path, format!("model.{field}"), problem)
+        })?;
+        saved
+            .adam
+            .check_config()
+            .map_err(|e| BundleError::new(path, "adam.config", e.to_string()))?;
+        Ok(saved)
+    }
 }
 
 /// `fit_report.json` (contract keys: `material.E_median_pa`,
@@ -577,7 +593,7 @@ impl FitRun<'_> {
         let options = self.options;
         let checkpoint_path = self.out.join(CHECKPOINT_FILE);
         if self.resume && checkpoint_path.is_file() {
-            let saved: Checkpoint = dm_bundle::read_json(&checkpoint_path)?;
+            let saved = Checkpoint::load(&checkpoint_path)?;
             if saved.options != *options {
                 return Err(FitError::InvalidOption {
                     option: "--resume".into(),

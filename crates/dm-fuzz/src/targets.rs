@@ -187,12 +187,8 @@ impl Harness {
                     .unwrap_or_else(|e| panic!("scratch write failed: {e}"));
                 opened
             }
-            Target::ModelJson => {
-                dm_bundle::read_json::<dm_model::WorldModel>(&file("model.json")).is_ok()
-            }
-            Target::Checkpoint => {
-                dm_bundle::read_json::<dm_fit::run::Checkpoint>(&file("checkpoint.json")).is_ok()
-            }
+            Target::ModelJson => dm_model::WorldModel::load(&file("model.json")).is_ok(),
+            Target::Checkpoint => dm_fit::run::Checkpoint::load(&file("checkpoint.json")).is_ok(),
             Target::PlayCommand => {
                 serde_json::from_slice::<dm_play::server::Command>(input).is_ok()
             }

@@ -22,6 +22,7 @@ use dm_mpm::{
     PhysicsConfig, SimError, World,
 };
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// Why a model could not be built or rolled out.
 #[derive(Debug, thiserror::Error)]
@@ -207,27 +208,28 @@ fn particle_volume(points: &[[f64; 3]]) -> f64 {
     cells.len() as f64 * h.powi(3) / points.len() as f64
 }
 
-impl WorldModel {
-    /// The untrained model of a bundle's scene.
-    pub fn from_bundle(bundle: &Bundle, options: &ModelOptions) -> Result<Self, ModelError> {
-        if options.grid < 16 || options.patches == 0 {
+impl ModelOptions {
+    /// The ranges `from_bundle` needs: a grid of at least 16, a patch, the
+    /// hand smoothing and grasp radius within their bounds.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if self.grid < 16 || self.patches == 0 {
             return Err(ModelError::InvalidOption {
                 option: "--grid/--patches".into(),
                 problem: "need a grid of at least 16 and at least one patch".into(),
             });
         }
-        if !(options.hand_smoothing.is_finite()
-            && (0.0..=MAX_HAND_SMOOTHING_FRAMES).contains(&options.hand_smoothing))
+        if !(self.hand_smoothing.is_finite()
+            && (0.0..=MAX_HAND_SMOOTHING_FRAMES).contains(&self.hand_smoothing))
         {
             return Err(ModelError::InvalidOption {
                 option: "--hand-smoothing".into(),
                 problem: format!(
                     "σ must be between 0 and {MAX_HAND_SMOOTHING_FRAMES} frames, got {}",
-                    options.hand_smoothing
+                    self.hand_smoothing
                 ),
             });
         }
-        if let Some(r) = options.grasp_radius
+        if let Some(r) = self.grasp_radius
             && !(r.is_finite() && (MIN_GRASP_RADIUS_M..=MAX_GRASP_RADIUS_M).contains(&r))
         {
             return Err(ModelError::InvalidOption {
@@ -237,6 +239,106 @@ impl WorldModel {
                 ),
             });
         }
+        Ok(())
+    }
+}
+
+impl WorldModel {
+    /// Reads a model file (`model.json`) and checks that its parts agree
+    /// ([`Self::check_consistent`]); errors name the file and the field.
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let model: Self = dm_bundle::read_json(path)?;
+        model
+            .check_consistent()
+            .map_err(|(field, problem)| dm_bundle::BundleError::new(path, field, problem))?;
+        Ok(model)
+    }
+
+    /// Whether the parts of a model read from a file agree, so that no
+    /// later index or allocation trusts a length it never checked: the
+    /// options in range, one colour, patch weighting and patch triple per
+    /// particle, patch indices inside the patch parameters, the physics
+    /// valid, and a residual network whose weights fit its spec. Returns
+    /// the field and the problem.
+    pub fn check_consistent(&self) -> Result<(), (String, String)> {
+        let field = |name: &str, problem: String| Err((name.to_string(), problem));
+        if let Err(e) = self.options.validate() {
+            return field("options", e.to_string());
+        }
+        if let Err(e) = self.physics.validate() {
+            return field("physics", e.to_string());
+        }
+        let n = self.particles.len();
+        if n == 0 {
+            return field("particles", "no particles".into());
+        }
+        if self.particles.iter().flatten().any(|c| !c.is_finite()) {
+            return field("particles", "a coordinate is not finite".into());
+        }
+        if self.surface_count > n {
+            return field(
+                "surface_count",
+                format!("{} surface particles of {n}", self.surface_count),
+            );
+        }
+        if !(self.particle_volume.is_finite() && self.particle_volume > 0.0) {
+            return field("particle_volume", "must be positive".into());
+        }
+        for (name, len) in [
+            ("colors", self.colors.len()),
+            ("patches.neighbours", self.patches.neighbours.len()),
+            ("patches.beta", self.patches.beta.len()),
+        ] {
+            if len != n {
+                return field(name, format!("{len} entries for {n} particles"));
+            }
+        }
+        let patches = self.patches.centres.len();
+        if patches == 0 {
+            return field("patches.centres", "no patches".into());
+        }
+        if let Some(i) = self
+            .patches
+            .neighbours
+            .iter()
+            .flatten()
+            .find(|&&i| i as usize >= patches)
+        {
+            return field(
+                "patches.neighbours",
+                format!("patch {i} of {patches} patches"),
+            );
+        }
+        for (name, len) in [
+            ("params.youngs_raw", self.params.youngs_raw.len()),
+            ("params.poisson_raw", self.params.poisson_raw.len()),
+            ("params.logits", self.params.logits.len()),
+        ] {
+            if len != patches {
+                return field(name, format!("{len} entries for {patches} patches"));
+            }
+        }
+        if let Some(residual) = &self.residual {
+            let expected = match residual.spec.parameter_count() {
+                Ok(count) => count,
+                Err(e) => return field("residual.spec", e.to_string()),
+            };
+            if residual.parameters.len() != expected {
+                return field(
+                    "residual.parameters",
+                    format!(
+                        "{} weights for a network of {expected}",
+                        residual.parameters.len()
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The untrained model of a bundle's scene.
+    pub fn from_bundle(bundle: &Bundle, options: &ModelOptions) -> Result<Self, ModelError> {
+        options.validate()?;
         let p = &bundle.particles;
         let mut particles = Vec::new();
         let mut colors = Vec::new();

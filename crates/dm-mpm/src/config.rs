@@ -219,7 +219,8 @@ impl PhysicsConfig {
         if self.substeps_per_frame == 0 {
             return bad("substeps_per_frame", "must be at least 1");
         }
-        if 2 * self.wall_cells + 4 > self.grid_res {
+        // Saturating: a huge value read from a file must not wrap to a small one.
+        if self.wall_cells.saturating_mul(2).saturating_add(4) > self.grid_res {
             return bad("wall_cells", "walls leave no interior");
         }
         let [lo, hi] = self.position_clip;

@@ -55,7 +55,7 @@ pub enum PlayError {
 /// Opens a fitted model directory (`model.json`, and the splats of
 /// `dm-appearance` when present) as a session.
 pub fn open_session(model_dir: &Path, options: &PlayOptions) -> Result<Session, PlayError> {
-    let model: dm_model::WorldModel = dm_bundle::read_json(&model_dir.join("model.json"))?;
+    let model = dm_model::WorldModel::load(&model_dir.join("model.json"))?;
     let mut session = Session::new(model, options)?;
     if dm_appearance::store::has_appearance(model_dir) {
         let (gaussians, _) = dm_appearance::store::load_appearance(model_dir, session.model())?;

@@ -296,12 +296,9 @@ impl PyModel {
 #[pyfunction]
 fn load_model(py: Python<'_>, directory: PathBuf) -> PyResult<PyModel> {
     guarded("load_model", || {
-        let model: WorldModel = py
-            .detach(|| dm_bundle::read_json(&directory.join("model.json")))
-            .map_err(crate::bundle_error)?;
-        model.physics.validate().map_err(|e| {
-            ModelError::new_err(format!("{}: {e}", directory.join("model.json").display()))
-        })?;
+        let model = py
+            .detach(|| WorldModel::load(&directory.join("model.json")))
+            .map_err(crate::model_error)?;
         let splats = if dm_appearance::store::has_appearance(&directory) {
             let (gaussians, _) = py
                 .detach(|| dm_appearance::store::load_appearance(&directory, &model))

@@ -67,6 +67,51 @@ pub struct ResidualSpec {
     pub seed: u64,
 }
 
+/// Widest layer a network may have: 32 times the default's widest, and a
+/// bound on what a model file may ask to allocate (16.8 M weights a layer).
+pub const MAX_LAYER_WIDTH: usize = 4096;
+
+impl ResidualSpec {
+    /// Checks the spec before anything is allocated for it: a kind with a
+    /// network, positive widths up to [`MAX_LAYER_WIDTH`], groups dividing
+    /// the encoder widths, a positive bound and grid.
+    pub fn validate(&self) -> Result<(), ResidualError> {
+        let invalid = |field: &str, problem: String| {
+            Err(ResidualError::Input {
+                field: field.into(),
+                problem,
+            })
+        };
+        if self.kind == ResidualKind::None {
+            return invalid("kind", "`none` has no network".into());
+        }
+        let widths = self.size.encoder.iter().chain([&self.size.decoder]);
+        if widths.clone().any(|&w| w == 0 || w > MAX_LAYER_WIDTH) {
+            return invalid(
+                "size",
+                format!("every layer width must be between 1 and {MAX_LAYER_WIDTH}"),
+            );
+        }
+        let groups = self.size.groups;
+        if groups == 0 || self.size.encoder.iter().any(|w| w % groups != 0) {
+            return invalid(
+                "size.groups",
+                format!("{groups} groups must divide every encoder width"),
+            );
+        }
+        if !(self.alpha > 0.0 && self.grid_dx > 0.0 && self.domain_size > 0.0) {
+            return invalid("alpha / grid_dx / domain_size", "must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// How many weights a network of this spec has (after [`Self::validate`]).
+    pub fn parameter_count(&self) -> Result<usize, ResidualError> {
+        self.validate()?;
+        Ok(Layout::new(self).total)
+    }
+}
+
 /// Scale of the decoder's raw output before the bound. Adam's first steps
 /// move every weight by about the learning rate whatever the gradient's
 /// size; from a zero last layer that alone gave |Δv| ≈ 0.8 m/s (2.5 cm a
@@ -700,31 +745,7 @@ impl Residual {
     /// initialisation, except the last layer, which starts at zero so that
     /// an untrained residual changes nothing.
     pub fn new(spec: ResidualSpec, precision: Precision) -> Result<Self, ResidualError> {
-        if spec.kind == ResidualKind::None {
-            return Err(ResidualError::Input {
-                field: "kind".into(),
-                problem: "`none` has no network".into(),
-            });
-        }
-        if spec.size.decoder == 0 || spec.size.encoder.contains(&0) {
-            return Err(ResidualError::Input {
-                field: "size".into(),
-                problem: "every layer width must be positive".into(),
-            });
-        }
-        let groups = spec.size.groups;
-        if groups == 0 || spec.size.encoder.iter().any(|w| w % groups != 0) {
-            return Err(ResidualError::Input {
-                field: "size.groups".into(),
-                problem: format!("{groups} groups must divide every encoder width"),
-            });
-        }
-        if !(spec.alpha > 0.0 && spec.grid_dx > 0.0 && spec.domain_size > 0.0) {
-            return Err(ResidualError::Input {
-                field: "alpha / grid_dx / domain_size".into(),
-                problem: "must be positive".into(),
-            });
-        }
+        spec.validate()?;
         let layout = Layout::new(&spec);
         let mut values = vec![0.0; layout.total];
         let mut uniform = uniform_stream(spec.seed);

@@ -502,9 +502,8 @@ fn run_one(
     };
     template.fit_seconds = clock.elapsed().as_secs_f64();
     let model = match outcome {
-        Ok(FitOutcome::Finished(_)) => {
-            dm_bundle::read_json::<dm_model::WorldModel>(&model_dir.join("model.json"))?
-        }
+        Ok(FitOutcome::Finished(_)) => dm_model::WorldModel::load(&model_dir.join("model.json"))
+            .map_err(|e| fit_error(e.into()))?,
         Ok(FitOutcome::Paused { .. }) => unreachable!("run_fit pauses only with stop_after"),
         Err(e) => {
             return match divergence_of_fit(&e) {

@@ -37,7 +37,7 @@ struct AppearanceArgs {
 fn main() -> Result<()> {
     let args = AppearanceArgs::parse();
     let model_json = args.model_dir.join("model.json");
-    let model: WorldModel = dm_bundle::read_json(&model_json)
+    let model = WorldModel::load(&model_json)
         .with_context(|| format!("reading the model in {}", args.model_dir.display()))?;
     let bundle = Bundle::open(&args.bundle)
         .with_context(|| format!("reading bundle {}", args.bundle.display()))?;

@@ -164,7 +164,7 @@ fn suite_main(args: &EvalArgs, suite_path: &Path) -> Result<()> {
 /// `dm-eval MODEL_DIR BUNDLE --out DIR`.
 fn eval_main(args: &EvalArgs, model_dir: &Path, bundle_dir: &Path) -> Result<()> {
     let model_json = model_dir.join("model.json");
-    let model: WorldModel = dm_bundle::read_json(&model_json)
+    let model = WorldModel::load(&model_json)
         .with_context(|| format!("reading the model in {}", model_dir.display()))?;
     let bundle = Bundle::open(bundle_dir)
         .with_context(|| format!("reading bundle {}", bundle_dir.display()))?;

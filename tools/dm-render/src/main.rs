@@ -45,7 +45,7 @@ struct RenderArgs {
 fn main() -> Result<()> {
     let args = RenderArgs::parse();
     let model_json = args.model_dir.join("model.json");
-    let model: WorldModel = dm_bundle::read_json(&model_json)
+    let model = WorldModel::load(&model_json)
         .with_context(|| format!("reading the model in {}", args.model_dir.display()))?;
     if !dm_appearance::store::has_appearance(&args.model_dir) {
         anyhow::bail!(

@@ -65,7 +65,7 @@ fn main() -> Result<()> {
     let bundle = Bundle::open(&args.bundle)
         .with_context(|| format!("reading bundle {}", args.bundle.display()))?;
     let model: WorldModel = match &args.model_dir {
-        Some(dir) => dm_bundle::read_json(&dir.join("model.json"))
+        Some(dir) => WorldModel::load(&dir.join("model.json"))
             .with_context(|| format!("reading the fitted model in {}", dir.display()))?,
         None => {
             WorldModel::from_bundle(&bundle, &args.model).context("building the world model")?

@@ -102,6 +102,13 @@ pub struct Adam {
 }
 
 impl Adam {
+    /// Checks the settings of an optimiser read from a file, as
+    /// [`Adam::new`] checks them (a β₁ of 1, say, would zero the bias
+    /// correction).
+    pub fn check_config(&self) -> Result<(), OptimError> {
+        self.config.validate()
+    }
+
     pub fn new(config: AdamConfig) -> Result<Self, OptimError> {
         config.validate()?;
         Ok(Self {
@@ -147,6 +154,9 @@ impl Adam {
             moments
                 .first
                 .check_same_layout(params, "parameters (vs. optimiser state)")?;
+            moments
+                .second
+                .check_same_layout(params, "parameters (vs. optimiser second moments)")?;
         }
         if let Some(unknown) = self
             .config

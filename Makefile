@@ -160,13 +160,10 @@ $(LPIPS_MODEL): $(LPIPS_CACHE)/downloads/.done scripts/build_lpips.py scripts/lp
 
 # The Python package (docs/python.md): an abi3 wheel built by maturin from
 # crates/dm-python into target/wheels, installed into its own venv with
-# numpy, gymnasium, matplotlib and pytest. `make test` builds it in the
-# test profile (also optimised), whose compiled crates `cargo test` has
-# just made, instead of compiling them all again for release.
+# numpy, gymnasium, matplotlib and pytest.
 PY_VENV ?= .venv-python
 PY_PYTHON ?= python3
 PY_WHEELS ?= target/wheels
-PY_PROFILE ?= release
 
 $(PY_VENV)/.installed: crates/dm-python/requirements.txt
 	@command -v $(PY_PYTHON) >/dev/null || { echo "error: $(PY_PYTHON) not found (needed for the Python package)" >&2; exit 1; }
@@ -176,7 +173,7 @@ $(PY_VENV)/.installed: crates/dm-python/requirements.txt
 
 python: $(PY_VENV)/.installed
 	@rm -f $(PY_WHEELS)/deformmaster-*.whl
-	$(PY_VENV)/bin/maturin build --quiet --profile $(PY_PROFILE) --manifest-path crates/dm-python/Cargo.toml --out $(PY_WHEELS)
+	$(PY_VENV)/bin/maturin build --quiet --release --manifest-path crates/dm-python/Cargo.toml --out $(PY_WHEELS)
 	$(PY_VENV)/bin/pip install --quiet --disable-pip-version-check --force-reinstall --no-deps $(PY_WHEELS)/deformmaster-*.whl
 	@echo "deformmaster installed in $(PY_VENV): $(PY_VENV)/bin/python examples/python/rollout.py MODEL_DIR BUNDLE"
 
@@ -187,7 +184,7 @@ NVRTC_LIB = $$(echo $(CURDIR)/$(VENV)/lib/python3*/site-packages/nvidia/cu13/lib
 test: setup
 	bash scripts/check_words.sh
 	LD_LIBRARY_PATH=$(NVRTC_LIB)$${LD_LIBRARY_PATH:+:$$LD_LIBRARY_PATH} $(CARGO) test --workspace
-	$(MAKE) python PY_PROFILE=test
+	$(MAKE) python
 	DM_BIN_DIR=$(CURDIR)/target/debug $(PY_VENV)/bin/python -m pytest -q crates/dm-python/tests
 
 bench: build

@@ -285,8 +285,9 @@ pub struct Checkpoint {
 }
 
 impl Checkpoint {
-    /// Reads a checkpoint file and checks that its model's parts agree and
-    /// its optimiser's settings are valid; errors name the file and field.
+    /// Reads a checkpoint file and checks that its model's parts agree, its
+    /// optimiser's settings are valid and its kept network's step lies in
+    /// the residual stage; errors name the file and field.
     pub fn load(path: &Path) -> Result<Self, FitError> {
         let saved: Self = dm_bundle::read_json(path)?;
         saved.model.check_consistent().map_err(|(field, problem)| {
@@ -296,6 +297,19 @@ impl Checkpoint {
             .adam
             .check_config()
             .map_err(|e| BundleError::new(path, "adam.config", e.to_string()))?;
+        if let Some(kept) = &saved.kept_residual
+            && kept.step > saved.options.residual_iters
+        {
+            return Err(BundleError::new(
+                path,
+                "kept_residual.step",
+                format!(
+                    "step {} of a residual stage of {} steps",
+                    kept.step, saved.options.residual_iters
+                ),
+            )
+            .into());
+        }
         Ok(saved)
     }
 }

@@ -34,6 +34,12 @@ fn a_checkpoint_with_disagreeing_parts_is_refused_with_file_and_field() {
             c["model"]["params"]["logits"] = json!([]);
         }),
         ("adam.config", |c| c["adam"]["config"]["beta1"] = json!(1.0)),
+        (
+            "kept_residual.step",
+            |c| {
+                c["kept_residual"] = json!({"step": usize::MAX, "late_loss": 1.0, "parameters": []})
+            },
+        ),
     ];
     for (field, change) in cases {
         let mut checkpoint = corpus_checkpoint();

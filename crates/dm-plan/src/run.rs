@@ -380,13 +380,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     }
     let (mut plant, plant_name) = match &options.plant {
         Some(path) => {
-            let truth: dm_synth::TruthFile = dm_bundle::read_json(path)?;
-            // The scene's settings, checked as dm-synth checks them before
-            // any world is built from them.
-            truth
-                .config
-                .validate()
-                .map_err(|e| dm_bundle::BundleError::new(path, "config", e.to_string()))?;
+            let truth = dm_synth::TruthFile::load(path)?;
             let clip = dm_synth::clip_hand_anchors(&truth);
             let plant = if truth.engine.is_some() {
                 let foreign = dm_synth::foreign_plant::MujocoPlant::start(&truth, options.hands)?;

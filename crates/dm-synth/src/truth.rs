@@ -114,6 +114,20 @@ pub struct TruthFile {
     pub effect_displacement_m: Option<f64>,
 }
 
+impl TruthFile {
+    /// Reads a truth file and checks its scene settings as dm-synth checks
+    /// them before simulating, so no world is built from settings it would
+    /// refuse (a clip without frames); errors name the file and the field.
+    pub fn load(path: &std::path::Path) -> Result<Self, dm_bundle::BundleError> {
+        let truth: Self = dm_bundle::read_json(path)?;
+        truth
+            .config
+            .validate()
+            .map_err(|e| dm_bundle::BundleError::new(path, "config", e.to_string()))?;
+        Ok(truth)
+    }
+}
+
 /// The version of a record written before versions were recorded (serde's
 /// default for `truth_version` fields).
 pub fn first_truth_version() -> u32 {

@@ -21,6 +21,12 @@
 #    defaults (the pgnd residual included) on the GPU;
 # 5. with DIAGNOSE_MODEL and DIAGNOSE_SCENE set (the demo's diag_model and
 #    diag_scene): dm-diagnose on both devices, its time and named cause.
+# PARTS picks some of them (default every one): a space-separated subset
+# of `parity throughput sim fit defaults plan diagnose`; PLAN_MODEL is the
+# model the plan uses (default the GPU fit of part `fit`). CPU_REFERENCE=0
+# leaves out the runs on the host's cores beside the GPU's; GRAPHS_AB=1
+# also runs the demo's fit and the plan with DM_CUDA_GRAPHS=off (every
+# substep launched kernel by kernel).
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -29,6 +35,14 @@ SCENE=${2:-}
 MODEL=${3:-}
 OUT_DIR=${4:-out/gpu-check}
 status=0
+PARTS=" ${PARTS:-parity throughput sim fit defaults plan diagnose} "
+part() { [[ $PARTS == *" $1 "* ]]; }
+if [ "${CPU_REFERENCE:-1}" = 0 ]; then CPU_DEVICE=""; else CPU_DEVICE=cpu; fi
+# The GPU runs, then (GRAPHS_AB=1) the same without graphs, then the CPU's.
+GPU_VARIANTS="cuda"
+[ "${GRAPHS_AB:-0}" = 1 ] && GPU_VARIANTS="cuda cuda-nographs"
+variant_env() { [ "$1" = cuda-nographs ] && echo DM_CUDA_GRAPHS=off || echo DM_CUDA_GRAPHS=on; }
+variant_device() { [ "$1" = cpu ] && echo cpu || echo cuda; }
 run() {
     echo "\$ $*"
     "$@" || { rc=$?; echo "FAILED ($rc): $*"; [ $status -ne 0 ] || status=$rc; }
@@ -45,28 +59,30 @@ if [ -n "${DM_NVRTC_DIR:-}" ]; then
 fi
 echo "NVRTC from ${DM_NVRTC_DIR:-the library path}"
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
-run "$BIN/dm-bench" cuda-parity --particles 20000 --frames 10
-for setup in "100000 32" "1000000 128"; do
-    set -- $setup
-    for experts in nh moce; do
-        run "$BIN/dm-bench" mpm --device cuda --particles "$1" --grid "$2" --experts "$experts" --substeps 400 --repeats 5
+part parity && run "$BIN/dm-bench" cuda-parity --particles 20000 --frames 10
+if part throughput; then
+    for setup in "100000 32" "1000000 128"; do
+        set -- $setup
+        for experts in nh moce; do
+            run "$BIN/dm-bench" mpm --device cuda --particles "$1" --grid "$2" --experts "$experts" --substeps 400 --repeats 5
+        done
     done
-done
-run "$BIN/dm-bench" grad --device cuda --particles 100000 --window 20 --grid 32 --repeats 5
-run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
-for device in cuda cpu; do
-    run "$BIN/dm-bench" residual --device "$device" --particles 8000 --repeats 9
-done
-# Stage 3's splats stay on the CPU: the renderer on the host's cores.
-run "$BIN/dm-bench" render --gaussians 50000 --width 640 --height 480
-if [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
+    run "$BIN/dm-bench" grad --device cuda --particles 100000 --window 20 --grid 32 --repeats 5
+    [ -n "$CPU_DEVICE" ] && run "$BIN/dm-bench" mpm --particles 100000 --grid 32 --experts nh --substeps 100
+    for device in cuda $CPU_DEVICE; do
+        run "$BIN/dm-bench" residual --device "$device" --particles 8000 --repeats 9
+    done
+    # Stage 3's splats stay on the CPU: the renderer on the host's cores.
+    run "$BIN/dm-bench" render --gaussians 50000 --width 640 --height 480
+fi
+if part sim && [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     mkdir -p "$OUT_DIR"
     for device in cpu cuda; do
         run "$BIN/dm-sim" "$SCENE" --model-dir "$MODEL" --out "$OUT_DIR/sim-$device" --device "$device"
         python3 -c "import json,sys; s=json.load(open(sys.argv[1])); print('dm-sim $device: %d frames, %d particles, %.2f s, held-out track %.2f mm' % (s['frames'], s['particles'], s['seconds'], 1e3*s['track_error_m']['test']))" "$OUT_DIR/sim-$device/summary.json"
     done
     python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
-    for device in cuda cpu; do
+    for device in cuda $CPU_DEVICE; do
         run "$BIN/dm-bench" play --model "$MODEL" --exact --device "$device" --frames 40
     done
 fi
@@ -74,27 +90,29 @@ if [ -n "${FIT_SCENE:-}" ]; then
     mkdir -p "$OUT_DIR"
     # One line per fit: its time, where the time went, and the result.
     FIT_SUMMARY='import json,sys; r=json.load(open(sys.argv[2])); print("%s: %.1f s (%s), E %.4g Pa, final loss %.5g, residual %s" % (sys.argv[1], r["seconds"], ", ".join("%s %.1f" % kv for kv in r.get("seconds_by_stage", {}).items()), r["material"]["E_median_pa"], r["loss"]["final"], r["residual"]["kind"]))'
-    for device in cuda cpu; do
-        run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$device" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$device"
-        python3 -c "$FIT_SUMMARY" "dm-fit $device" "$OUT_DIR/fit-$device/fit_report.json"
-    done
-    if [ "${FIT_DEFAULTS:-0}" = 1 ]; then
+    if part fit; then
+        for variant in $GPU_VARIANTS $CPU_DEVICE; do
+            run env "$(variant_env "$variant")" "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$variant" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$(variant_device "$variant")"
+            python3 -c "$FIT_SUMMARY" "dm-fit $variant" "$OUT_DIR/fit-$variant/fit_report.json"
+        done
+    fi
+    if part defaults && [ "${FIT_DEFAULTS:-0}" = 1 ]; then
         started=$(date +%s.%N)
         run "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-defaults-cuda" --device cuda
         echo "dm-fit defaults cuda: the whole command took $(python3 -c "import sys; print('%.1f' % (float(sys.argv[2]) - float(sys.argv[1])))" "$started" "$(date +%s.%N)") s"
         python3 -c "$FIT_SUMMARY" "dm-fit defaults cuda" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
     fi
-    if [ -e "$FIT_SCENE.truth.json" ]; then
-        for device in cuda cpu; do
-            run "$BIN/dm-plan" "$OUT_DIR/fit-cuda" --bundle "$FIT_SCENE" --goal place \
-                --plant "$FIT_SCENE.truth.json" --no-video --device "$device" --out "$OUT_DIR/plan-$device"
-            python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-plan $device: %.1f s, %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm' % (r['seconds'], r['rollouts'], 1e3*r['start']['final_chamfer_m'], 1e3*r['planned']['final_chamfer_m'], 1e3*r['executed']['final_chamfer_m']))" "$OUT_DIR/plan-$device/plan.json"
+    if part plan && [ -e "$FIT_SCENE.truth.json" ]; then
+        for variant in $GPU_VARIANTS $CPU_DEVICE; do
+            run env "$(variant_env "$variant")" "$BIN/dm-plan" "${PLAN_MODEL:-$OUT_DIR/fit-cuda}" --bundle "$FIT_SCENE" --goal place \
+                --plant "$FIT_SCENE.truth.json" --no-video --device "$(variant_device "$variant")" --out "$OUT_DIR/plan-$variant"
+            python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-plan %s: %.1f s, %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm' % (sys.argv[2], r['seconds'], r['rollouts'], 1e3*r['start']['final_chamfer_m'], 1e3*r['planned']['final_chamfer_m'], 1e3*r['executed']['final_chamfer_m']))" "$OUT_DIR/plan-$variant/plan.json" "$variant"
         done
     fi
 fi
-if [ -n "${DIAGNOSE_MODEL:-}" ] && [ -n "${DIAGNOSE_SCENE:-}" ]; then
+if part diagnose && [ -n "${DIAGNOSE_MODEL:-}" ] && [ -n "${DIAGNOSE_SCENE:-}" ]; then
     mkdir -p "$OUT_DIR"
-    for device in cuda cpu; do
+    for device in cuda $CPU_DEVICE; do
         SECONDS=0
         run "$BIN/dm-diagnose" "$DIAGNOSE_MODEL" "$DIAGNOSE_SCENE" --out "$OUT_DIR/diagnose-$device" --device "$device"
         python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print('dm-diagnose $device: %.1f s, cause %s (confidence %.2f)' % (float(sys.argv[2]), d['cause'], d['confidence']))" "$OUT_DIR/diagnose-$device/diagnosis.json" "$SECONDS"

@@ -44,6 +44,7 @@ using Run = void (*)(void**);
 struct Kernel {
     std::string precision, name;
     Run run;
+    std::vector<size_t> param_sizes;
 };
 
 struct Module {
@@ -66,7 +67,8 @@ std::recursive_mutex& device_lock() {
 // With DM_CUDA_EMULATOR_COUNTS=FILE the emulator writes to FILE at exit
 // what the run asked of the device: launches (and blocks) per kernel, and
 // calls with their bytes per kind (copies each way, allocations, memsets,
-// waits, event calls). These do not
+// waits, event calls; kernel launches from the host, and work captured
+// into graphs and replayed by graph launches, apart). These do not
 // depend on how slowly the emulator runs them, so they show where a GPU
 // run's launch and transfer latency goes.
 
@@ -326,9 +328,50 @@ unsigned warp_ballot(bool flag) {
 
 }  // namespace dm_emu
 
-extern "C" void dm_emu_register(const char* precision, const char* name, void (*run)(void**)) {
-    registry()[{precision, name}] = Kernel{precision, name, run};
+extern "C" void dm_emu_register(const char* precision, const char* name, void (*run)(void**),
+                                int param_count, const size_t* param_sizes) {
+    registry()[{precision, name}] =
+        Kernel{precision, name, run, std::vector<size_t>(param_sizes, param_sizes + param_count)};
 }
+
+// ---- stream capture and graphs ------------------------------------------
+//
+// A stream in capture mode records its launches, memsets and
+// device-to-device copies (the arguments copied, as the driver does)
+// instead of running them; a graph launch replays them in order. Other
+// work on a capturing stream is refused, as copies from or to the host
+// and waits would be on a GPU.
+
+namespace {
+
+struct Operation {
+    enum Kind { LAUNCH, MEMSET, COPY } kind;
+    const Kernel* kernel = nullptr;
+    dm_emu::uint3 grid{}, threads{};
+    std::vector<std::vector<unsigned char>> arguments;
+    CUdeviceptr to = 0, from = 0;
+    unsigned char value = 0;
+    size_t bytes = 0;
+};
+
+struct Graph {
+    std::vector<Operation> operations;
+};
+
+struct Stream {
+    Graph* capture = nullptr;
+};
+
+Graph* capturing(CUstream stream) {
+    return stream ? static_cast<Stream*>(stream)->capture : nullptr;
+}
+
+const CUresult CAPTURE_UNSUPPORTED = 900;  // CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED
+const CUresult ILLEGAL_STATE = 401;        // CUDA_ERROR_ILLEGAL_STATE
+
+CUresult launch_now(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::uint3 threads);
+
+}  // namespace
 
 // ---- the driver API ------------------------------------------------------
 
@@ -370,10 +413,14 @@ EXPORT CUresult cuCtxGetCurrent(CUcontext* context) { *context = &the_context; r
 EXPORT CUresult cuCtxSynchronize() { counts().call("wait", 0); return SUCCESS; }
 EXPORT CUresult cuCtxGetStreamPriorityRange(int* least, int* greatest) { *least = *greatest = 0; return SUCCESS; }
 
-EXPORT CUresult cuStreamCreate(CUstream* stream, unsigned) { *stream = new int(0); return SUCCESS; }
-EXPORT CUresult cuStreamCreateWithPriority(CUstream* stream, unsigned, int) { *stream = new int(0); return SUCCESS; }
-EXPORT CUresult cuStreamDestroy_v2(CUstream stream) { delete static_cast<int*>(stream); return SUCCESS; }
-EXPORT CUresult cuStreamSynchronize(CUstream) { counts().call("wait", 0); return SUCCESS; }
+EXPORT CUresult cuStreamCreate(CUstream* stream, unsigned) { *stream = new Stream(); return SUCCESS; }
+EXPORT CUresult cuStreamCreateWithPriority(CUstream* stream, unsigned, int) { *stream = new Stream(); return SUCCESS; }
+EXPORT CUresult cuStreamDestroy_v2(CUstream stream) { delete static_cast<Stream*>(stream); return SUCCESS; }
+EXPORT CUresult cuStreamSynchronize(CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    counts().call("wait", 0);
+    return SUCCESS;
+}
 EXPORT CUresult cuStreamWaitEvent(CUstream, CUevent, unsigned) { counts().call("stream_wait_event", 0); return SUCCESS; }
 EXPORT CUresult cuStreamQuery(CUstream) { return SUCCESS; }
 
@@ -402,16 +449,32 @@ static CUresult allocate(CUdeviceptr* pointer, size_t bytes) {
     return SUCCESS;
 }
 EXPORT CUresult cuMemAlloc_v2(CUdeviceptr* pointer, size_t bytes) { return allocate(pointer, bytes); }
-EXPORT CUresult cuMemAllocAsync(CUdeviceptr* pointer, size_t bytes, CUstream) { return allocate(pointer, bytes); }
+EXPORT CUresult cuMemAllocAsync(CUdeviceptr* pointer, size_t bytes, CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    return allocate(pointer, bytes);
+}
 EXPORT CUresult cuMemFree_v2(CUdeviceptr pointer) { std::free((void*)pointer); return SUCCESS; }
-EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream) { std::free((void*)pointer); return SUCCESS; }
+EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    std::free((void*)pointer);
+    return SUCCESS;
+}
 EXPORT CUresult cuMemsetD8_v2(CUdeviceptr to, unsigned char value, size_t n) {
     std::lock_guard<std::recursive_mutex> guard(device_lock());
     std::memset((void*)to, value, n);
     counts().call("memset", n);
     return SUCCESS;
 }
-EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, CUstream) {
+EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, CUstream stream) {
+    if (Graph* graph = capturing(stream)) {
+        Operation op{Operation::MEMSET};
+        op.to = to;
+        op.value = value;
+        op.bytes = n;
+        graph->operations.push_back(std::move(op));
+        counts().call("captured_memset", n);
+        return SUCCESS;
+    }
     return cuMemsetD8_v2(to, value, n);
 }
 EXPORT CUresult cuMemcpyHtoD_v2(CUdeviceptr to, const void* from, size_t n) {
@@ -420,7 +483,8 @@ EXPORT CUresult cuMemcpyHtoD_v2(CUdeviceptr to, const void* from, size_t n) {
     counts().call("htod", n);
     return SUCCESS;
 }
-EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n, CUstream) {
+EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n, CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
     return cuMemcpyHtoD_v2(to, from, n);
 }
 EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
@@ -429,7 +493,8 @@ EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
     counts().call("dtoh", n);
     return SUCCESS;
 }
-EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstream) {
+EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
     return cuMemcpyDtoH_v2(to, from, n);
 }
 EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
@@ -438,7 +503,16 @@ EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
     counts().call("dtod", n);
     return SUCCESS;
 }
-EXPORT CUresult cuMemcpyDtoDAsync_v2(CUdeviceptr to, CUdeviceptr from, size_t n, CUstream) {
+EXPORT CUresult cuMemcpyDtoDAsync_v2(CUdeviceptr to, CUdeviceptr from, size_t n, CUstream stream) {
+    if (Graph* graph = capturing(stream)) {
+        Operation op{Operation::COPY};
+        op.to = to;
+        op.from = from;
+        op.bytes = n;
+        graph->operations.push_back(std::move(op));
+        counts().call("captured_dtod", n);
+        return SUCCESS;
+    }
     return cuMemcpyDtoD_v2(to, from, n);
 }
 
@@ -470,9 +544,8 @@ EXPORT CUresult cuFuncSetAttribute(CUfunction, int, int) { return SUCCESS; }
 EXPORT CUresult cuFuncSetCacheConfig(CUfunction, int) { return SUCCESS; }
 
 EXPORT CUresult cuLaunchKernel(CUfunction function, unsigned gx, unsigned gy, unsigned gz,
-                               unsigned bx, unsigned by, unsigned bz, unsigned, CUstream,
+                               unsigned bx, unsigned by, unsigned bz, unsigned, CUstream stream,
                                void** params, void**) {
-    std::lock_guard<std::recursive_mutex> guard(device_lock());
     const Kernel& kernel = *static_cast<const Kernel*>(function);
     // The limits of the GPUs the kernels are built for (compute 7.5+).
     if (gx == 0 || gy == 0 || gz == 0 || gx > 2147483647u || gy > 65535 || gz > 65535 ||
@@ -483,17 +556,96 @@ EXPORT CUresult cuLaunchKernel(CUfunction function, unsigned gx, unsigned gy, un
         return INVALID_VALUE;
     }
     const dm_emu::uint3 grid{gx, gy, gz}, threads{bx, by, bz};
+    if (Graph* graph = capturing(stream)) {
+        Operation op{Operation::LAUNCH};
+        op.kernel = &kernel;
+        op.grid = grid;
+        op.threads = threads;
+        for (size_t i = 0; i < kernel.param_sizes.size(); ++i) {
+            const auto* bytes = static_cast<const unsigned char*>(params[i]);
+            op.arguments.emplace_back(bytes, bytes + kernel.param_sizes[i]);
+        }
+        graph->operations.push_back(std::move(op));
+        counts().call("captured_launch", 0);
+        return SUCCESS;
+    }
+    counts().call("host_launch", 0);
+    return launch_now(kernel, params, grid, threads);
+}
+
+namespace {
+CUresult launch_now(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::uint3 threads) {
+    std::lock_guard<std::recursive_mutex> guard(device_lock());
     if (counts().enabled) {
         auto& entry = counts().launches[kernel.name];
         entry.first += 1;
-        entry.second += (uint64_t)gx * gy * gz;
+        entry.second += (uint64_t)grid.x * grid.y * grid.z;
     }
-    for (unsigned z = 0; z < gz; ++z)
-        for (unsigned y = 0; y < gy; ++y)
-            for (unsigned x = 0; x < gx; ++x)
+    for (unsigned z = 0; z < grid.z; ++z)
+        for (unsigned y = 0; y < grid.y; ++y)
+            for (unsigned x = 0; x < grid.x; ++x)
                 if (!run_block(kernel, params, grid, threads, {x, y, z})) return LAUNCH_FAILED;
     return SUCCESS;
 }
+}  // namespace
+
+EXPORT CUresult cuStreamBeginCapture_v2(CUstream stream, int) {
+    if (!stream) return CAPTURE_UNSUPPORTED;  // the legacy stream cannot capture
+    Stream& s = *static_cast<Stream*>(stream);
+    if (s.capture) return ILLEGAL_STATE;
+    s.capture = new Graph();
+    return SUCCESS;
+}
+EXPORT CUresult cuStreamEndCapture(CUstream stream, void** graph) {
+    if (!capturing(stream)) return ILLEGAL_STATE;
+    Stream& s = *static_cast<Stream*>(stream);
+    *graph = s.capture;
+    s.capture = nullptr;
+    counts().call("graph_capture", 0);
+    return SUCCESS;
+}
+EXPORT CUresult cuStreamIsCapturing(CUstream stream, int* status) {
+    *status = capturing(stream) ? 1 : 0;  // CU_STREAM_CAPTURE_STATUS_ACTIVE : _NONE
+    return SUCCESS;
+}
+EXPORT CUresult cuGraphInstantiateWithFlags(void** exec, void* graph, unsigned long long) {
+    *exec = new Graph(*static_cast<Graph*>(graph));
+    return SUCCESS;
+}
+EXPORT CUresult cuGraphUpload(void*, CUstream) { return SUCCESS; }
+EXPORT CUresult cuGraphLaunch(void* exec, CUstream stream) {
+    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    counts().call("graph_launch", 0);
+    for (const Operation& op : static_cast<Graph*>(exec)->operations) {
+        CUresult result = SUCCESS;
+        switch (op.kind) {
+            case Operation::LAUNCH: {
+                std::vector<void*> params;
+                for (const auto& argument : op.arguments)
+                    params.push_back(const_cast<unsigned char*>(argument.data()));
+                counts().call("replayed_launch", 0);
+                result = launch_now(*op.kernel, params.data(), op.grid, op.threads);
+                break;
+            }
+            case Operation::MEMSET: {
+                std::lock_guard<std::recursive_mutex> guard(device_lock());
+                std::memset((void*)op.to, op.value, op.bytes);
+                counts().call("replayed_memset", op.bytes);
+                break;
+            }
+            case Operation::COPY: {
+                std::lock_guard<std::recursive_mutex> guard(device_lock());
+                std::memmove((void*)op.to, (const void*)op.from, op.bytes);
+                counts().call("replayed_dtod", op.bytes);
+                break;
+            }
+        }
+        if (result != SUCCESS) return result;
+    }
+    return SUCCESS;
+}
+EXPORT CUresult cuGraphExecDestroy(void* exec) { delete static_cast<Graph*>(exec); return SUCCESS; }
+EXPORT CUresult cuGraphDestroy(void* graph) { delete static_cast<Graph*>(graph); return SUCCESS; }
 
 EXPORT CUresult cuGetErrorName(CUresult error, const char** name) {
     static thread_local char text[32];

@@ -58,11 +58,17 @@ struct Thunk;
 template <typename... A, void (*Kernel)(A...)>
 struct Thunk<Kernel> {
     static void run(void** params) { call_with(Kernel, params, std::index_sequence_for<A...>{}); }
+    // The bytes of each parameter, so that a captured launch can keep
+    // copies of its arguments as the driver does.
+    static constexpr int param_count = sizeof...(A);
+    static constexpr std::size_t param_sizes[sizeof...(A) > 0 ? sizeof...(A) : 1] = {
+        sizeof(std::remove_cv_t<std::remove_reference_t<A>>)...};
 };
 
 }  // namespace dm_emu
 
-extern "C" void dm_emu_register(const char* precision, const char* name, void (*run)(void**));
+extern "C" void dm_emu_register(const char* precision, const char* name, void (*run)(void**),
+                                int param_count, const std::size_t* param_sizes);
 
 #define __global__
 #define __device__

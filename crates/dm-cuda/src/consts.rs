@@ -6,7 +6,7 @@ use dm_mpm::state::Consts;
 use dm_mpm::{ActuatorConfig, Real};
 
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KernelConsts<T> {
     dt: T,
     dx: T,

@@ -4,7 +4,12 @@ use crate::error::CudaError;
 use crate::kernels::{self, Precision};
 use cudarc::driver::{CudaContext, CudaFunction, CudaModule, CudaStream};
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+
+/// The environment variable that turns CUDA graphs off (`off` or `0`),
+/// for comparing with launches one by one.
+pub const GRAPHS_VARIABLE: &str = "DM_CUDA_GRAPHS";
 
 /// One GPU with a stream and the kernels compiled for it (per precision,
 /// on first use).
@@ -15,6 +20,9 @@ pub struct CudaDevice {
     arch: String,
     /// Shared by the handles of every stream of this GPU.
     modules: Arc<Mutex<HashMap<Precision, Arc<CudaModule>>>>,
+    /// Whether frames replay their substeps as CUDA graphs (shared by
+    /// every stream's handle; turned off for good by a failed capture).
+    graphs: Arc<AtomicBool>,
 }
 
 /// The entry points of one compiled module.
@@ -60,11 +68,13 @@ impl CudaDevice {
         unsafe { context.disable_event_tracking() };
         let (major, minor) = context.compute_capability()?;
         let stream = context.new_stream()?;
+        let graphs = !matches!(std::env::var(GRAPHS_VARIABLE).as_deref(), Ok("off" | "0"));
         Ok(Arc::new(Self {
             context,
             stream,
             arch: format!("compute_{major}{minor}"),
             modules: Arc::new(Mutex::new(HashMap::new())),
+            graphs: Arc::new(AtomicBool::new(graphs)),
         }))
     }
 
@@ -77,7 +87,21 @@ impl CudaDevice {
             stream: self.context.new_stream()?,
             arch: self.arch.clone(),
             modules: self.modules.clone(),
+            graphs: self.graphs.clone(),
         }))
+    }
+
+    /// Whether frames replay their substeps as CUDA graphs.
+    pub fn graphs_enabled(&self) -> bool {
+        self.graphs.load(Ordering::Relaxed)
+    }
+
+    /// Turns CUDA graphs off after a capture failed, saying so once:
+    /// substeps are then launched one by one, which computes the same.
+    pub(crate) fn give_up_graphs(&self, why: &CudaError) {
+        if self.graphs.swap(false, Ordering::Relaxed) {
+            eprintln!("warning: CUDA graph capture failed ({why}); launching substeps one by one");
+        }
     }
 
     /// The device's name as the driver reports it.

@@ -7,11 +7,15 @@ use crate::error::CudaError;
 use crate::frame::DeviceFrameTape;
 use crate::kernels::Precision;
 use crate::launch::{Laps, Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
-use cudarc::driver::{CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits};
+use cudarc::driver::sys::{CUgraphInstantiate_flags, CUstreamCaptureMode};
+use cudarc::driver::{
+    CudaGraph, CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits,
+};
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
 use dm_mpm::substep::StageSeconds;
 use dm_mpm::{ActuatorMode, Real, SimError, World};
+use std::ops::Range;
 use std::sync::Arc;
 
 /// A float type the kernels are compiled for.
@@ -86,6 +90,35 @@ pub struct CudaWorld<T: DeviceReal> {
     pub(crate) adjoint_seconds: Option<AdjointSeconds>,
     /// The adjoint's buffers, once a backward pass has run.
     pub(crate) adjoint: Option<AdjointBuffers<T>>,
+    /// The last frame's untaped substeps as a CUDA graph.
+    substep_graph: Option<SubstepGraph<T>>,
+}
+
+/// Substeps captured as a CUDA graph and what the capture baked in: the
+/// constants passed by value, the substep indices and the stride of the
+/// anchors. The buffers it reads keep their addresses; a buffer that is
+/// reallocated drops the graph.
+#[derive(Debug)]
+struct SubstepGraph<T> {
+    consts: KernelConsts<T>,
+    substeps: Range<usize>,
+    anchor_stride: Option<usize>,
+    graph: OwnedGraph,
+}
+
+/// A [`CudaGraph`] owned by one world.
+struct OwnedGraph(CudaGraph);
+
+// SAFETY: the graph is reached only through `&mut CudaWorld`, so calls on
+// it are serialised, which is all the driver asks of a graph used from
+// several threads; no `&self` method of the world touches it.
+unsafe impl Send for OwnedGraph {}
+unsafe impl Sync for OwnedGraph {}
+
+impl std::fmt::Debug for OwnedGraph {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CudaGraph")
+    }
 }
 
 impl<T: DeviceReal> CudaWorld<T> {
@@ -136,6 +169,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             stage_seconds: None,
             adjoint_seconds: None,
             adjoint: None,
+            substep_graph: None,
         };
         world.upload_couplings()?;
         Ok(world)
@@ -289,6 +323,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         self.couplings.anchor = stream.clone_htod(anchor)?;
         self.couplings.rest_offset = stream.clone_htod(&rest)?;
         self.couplings_on_device = anchor.len();
+        self.substep_graph = None;
         Ok(())
     }
 
@@ -376,19 +411,31 @@ impl<T: DeviceReal> CudaWorld<T> {
                 starts.extend(flat(&at));
             }
             let stream = self.device.stream().clone();
-            self.couplings.anchor_x = stream.clone_htod(&starts)?;
-            self.couplings.anchor_end = stream.clone_htod(&ends)?;
-            self.couplings.anchor_v = stream.clone_htod(&flat(&path.velocity))?;
+            let c = &mut self.couplings;
+            let mut moved = overwrite(&stream, &mut c.anchor_x, &starts)?;
+            moved |= overwrite(&stream, &mut c.anchor_end, &ends)?;
+            moved |= overwrite(&stream, &mut c.anchor_v, &flat(&path.velocity))?;
+            if moved {
+                self.substep_graph = None;
+            }
         }
         let k = self.kernel_consts();
         let anchors = anchors_from.len();
+        let anchor_stride = coupled.then_some(anchors * 3);
         let stream = self.device.stream().clone();
+        // The taped substeps copy the state before each: launched one by one.
+        let untaped = steps - window.map_or(0, |w| w.min(steps));
+        let first = if self.replay_substeps(&k, 0..untaped, anchor_stride)? {
+            untaped
+        } else {
+            0
+        };
         let mut states = Vec::new();
-        for s in 0..steps {
+        for s in first..steps {
             if window.is_some_and(|w| s + w >= steps) {
                 states.push(self.particles.duplicate(&stream)?);
             }
-            self.launch_substep(&k, s, coupled.then_some(s * anchors * 3))?;
+            self.launch_substep(&k, s, anchor_stride.map(|a| s * a))?;
         }
         self.host_stale = true;
         self.check_failure()?;
@@ -491,6 +538,64 @@ impl<T: DeviceReal> CudaWorld<T> {
         Ok(())
     }
 
+    /// Runs `substeps` of a frame as one CUDA graph launch, capturing the
+    /// graph first where the last one baked in other constants, substeps
+    /// or anchors. Returns false, having run nothing, where graphs are off
+    /// (also while stages are timed: timing waits between launches).
+    fn replay_substeps(
+        &mut self,
+        k: &KernelConsts<T>,
+        substeps: Range<usize>,
+        anchor_stride: Option<usize>,
+    ) -> Result<bool, CudaError> {
+        if substeps.is_empty() || self.stage_seconds.is_some() || !self.device.graphs_enabled() {
+            return Ok(false);
+        }
+        let current = self.substep_graph.as_ref().is_some_and(|g| {
+            g.consts == *k && g.substeps == substeps && g.anchor_stride == anchor_stride
+        });
+        if !current {
+            self.substep_graph = None;
+            match self.capture_substeps(k, substeps.clone(), anchor_stride) {
+                Ok(graph) => {
+                    self.substep_graph = Some(SubstepGraph {
+                        consts: *k,
+                        substeps,
+                        anchor_stride,
+                        graph: OwnedGraph(graph),
+                    });
+                }
+                Err(error) => {
+                    self.device.give_up_graphs(&error);
+                    return Ok(false);
+                }
+            }
+        }
+        let Some(graph) = &self.substep_graph else {
+            return Ok(false);
+        };
+        graph.graph.0.launch()?;
+        Ok(true)
+    }
+
+    /// Records the launches of `substeps` on the world's stream as a graph
+    /// (nothing runs); the capture is ended whatever happens.
+    fn capture_substeps(
+        &mut self,
+        k: &KernelConsts<T>,
+        substeps: Range<usize>,
+        anchor_stride: Option<usize>,
+    ) -> Result<CudaGraph, CudaError> {
+        let stream = self.device.stream().clone();
+        stream.begin_capture(CUstreamCaptureMode::CU_STREAM_CAPTURE_MODE_THREAD_LOCAL)?;
+        let launched = substeps
+            .into_iter()
+            .try_for_each(|s| self.launch_substep(k, s, anchor_stride.map(|a| s * a)));
+        let captured = stream.end_capture(CUgraphInstantiate_flags(0));
+        launched?;
+        captured?.ok_or_else(|| CudaError::Unsupported("a graph capture recorded nothing".into()))
+    }
+
     /// Reads the failure key (waiting for the GPU) and turns a recorded
     /// failure into [`SimError::Diverged`].
     fn check_failure(&mut self) -> Result<(), CudaError> {
@@ -513,6 +618,22 @@ impl<T: DeviceReal> CudaWorld<T> {
             reason: reason.into(),
         }
         .into())
+    }
+}
+
+/// Copies `values` into `buffer`, reallocating it where the length
+/// differs; returns whether the buffer moved.
+fn overwrite<T: DeviceReal>(
+    stream: &Arc<CudaStream>,
+    buffer: &mut CudaSlice<T>,
+    values: &[T],
+) -> Result<bool, CudaError> {
+    if buffer.len() == values.len() {
+        stream.memcpy_htod(values, buffer)?;
+        Ok(false)
+    } else {
+        *buffer = stream.clone_htod(values)?;
+        Ok(true)
     }
 }
 

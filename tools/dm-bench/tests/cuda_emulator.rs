@@ -26,7 +26,7 @@ fn emulated_unit() -> String {
     for (_, name) in precisions {
         for entry in ENTRY_POINTS.iter().chain(&RESIDUAL_ENTRY_POINTS) {
             unit.push_str(&format!(
-                "        dm_emu_register(\"{name}\", \"{entry}\", &dm_emu::Thunk<&dm_{name}::{entry}>::run);\n"
+                "        using T_{name}_{entry} = dm_emu::Thunk<&dm_{name}::{entry}>;\n        dm_emu_register(\"{name}\", \"{entry}\", &T_{name}_{entry}::run, T_{name}_{entry}::param_count, T_{name}_{entry}::param_sizes);\n"
             ));
         }
     }
@@ -76,9 +76,13 @@ fn build_emulator(dir: &Path) -> PathBuf {
 #[test]
 fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
     let library = build_emulator(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"));
+    let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator-counts.txt");
+    let _ = std::fs::remove_file(&counts);
     let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
         .args(["cuda-parity", "--particles", "400", "--frames", "2"])
         .env("LD_PRELOAD", &library)
+        .env("DM_CUDA_EMULATOR_COUNTS", &counts)
+        .env_remove("DM_CUDA_GRAPHS")
         .output()
         .expect("running dm-bench cuda-parity");
     let stdout = String::from_utf8_lossy(&output.stdout);
@@ -90,6 +94,27 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
     assert!(
         stdout.contains("CUDA emulator (CPU)"),
         "the parity ran on another device:\n{stdout}"
+    );
+    // The untaped substeps ran as CUDA graphs, captured and replayed.
+    let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
+    let calls = |kind: &str| -> u64 {
+        counts
+            .lines()
+            .find_map(|line| line.strip_prefix(kind)?.strip_prefix(' '))
+            .and_then(|rest| rest.split(' ').next()?.parse().ok())
+            .unwrap_or(0)
+    };
+    assert!(
+        calls("graph_capture") > 0 && calls("graph_launch") > calls("graph_capture"),
+        "no CUDA graph was captured and replayed:\n{counts}\n{stderr}"
+    );
+    assert!(
+        calls("replayed_launch") > 0,
+        "graphs replayed no launch:\n{counts}"
+    );
+    assert!(
+        !stderr.contains("graph capture failed"),
+        "a graph capture failed:\n{stderr}"
     );
     for kind in ["Pgnd", "Mlp"] {
         assert!(

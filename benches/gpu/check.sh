@@ -35,13 +35,17 @@ SCENE=${2:-}
 MODEL=${3:-}
 OUT_DIR=${4:-out/gpu-check}
 status=0
-PARTS=" ${PARTS:-parity throughput sim fit defaults plan diagnose} "
+ALL_PARTS="parity throughput sim fit defaults plan diagnose"
+PARTS=" ${PARTS:-$ALL_PARTS} "
+for name in $PARTS; do
+    [[ " $ALL_PARTS " == *" $name "* ]] || { echo "error: PARTS: unknown part '$name' (parts: $ALL_PARTS)" >&2; exit 2; }
+done
 part() { [[ $PARTS == *" $1 "* ]]; }
 if [ "${CPU_REFERENCE:-1}" = 0 ]; then CPU_DEVICE=""; else CPU_DEVICE=cpu; fi
 # The GPU runs, then (GRAPHS_AB=1) the same without graphs, then the CPU's.
 GPU_VARIANTS="cuda"
 [ "${GRAPHS_AB:-0}" = 1 ] && GPU_VARIANTS="cuda cuda-nographs"
-variant_env() { [ "$1" = cuda-nographs ] && echo DM_CUDA_GRAPHS=off || echo DM_CUDA_GRAPHS=on; }
+variant_env() { [ "$1" = cuda-nographs ] && echo DM_CUDA_GRAPHS=off || echo "DM_CUDA_GRAPHS=${DM_CUDA_GRAPHS:-on}"; }
 variant_device() { [ "$1" = cpu ] && echo cpu || echo cuda; }
 run() {
     echo "\$ $*"
@@ -77,11 +81,11 @@ if part throughput; then
 fi
 if part sim && [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     mkdir -p "$OUT_DIR"
-    for device in cpu cuda; do
+    for device in $CPU_DEVICE cuda; do
         run "$BIN/dm-sim" "$SCENE" --model-dir "$MODEL" --out "$OUT_DIR/sim-$device" --device "$device"
         python3 -c "import json,sys; s=json.load(open(sys.argv[1])); print('dm-sim $device: %d frames, %d particles, %.2f s, held-out track %.2f mm' % (s['frames'], s['particles'], s['seconds'], 1e3*s['track_error_m']['test']))" "$OUT_DIR/sim-$device/summary.json"
     done
-    python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
+    [ -n "$CPU_DEVICE" ] && python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
     for device in cuda $CPU_DEVICE; do
         run "$BIN/dm-bench" play --model "$MODEL" --exact --device "$device" --frames 40
     done

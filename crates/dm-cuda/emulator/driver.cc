@@ -16,6 +16,7 @@
 
 #include <sys/mman.h>
 
+#include <atomic>
 #include <cstdio>
 #include <cstdlib>
 #include <map>
@@ -339,8 +340,9 @@ extern "C" void dm_emu_register(const char* precision, const char* name, void (*
 // A stream in capture mode records its launches, memsets and
 // device-to-device copies (the arguments copied, as the driver does)
 // instead of running them; a graph launch replays them in order. Other
-// work on a capturing stream is refused, as copies from or to the host
-// and waits would be on a GPU.
+// work on a capturing stream is refused and invalidates the capture (its
+// end then fails), as copies from or to the host, allocations and waits
+// would on a GPU; so is a context-wide wait while any stream captures.
 
 namespace {
 
@@ -360,6 +362,7 @@ struct Graph {
 
 struct Stream {
     Graph* capture = nullptr;
+    bool invalidated = false;
 };
 
 Graph* capturing(CUstream stream) {
@@ -367,7 +370,28 @@ Graph* capturing(CUstream stream) {
 }
 
 const CUresult CAPTURE_UNSUPPORTED = 900;  // CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED
+const CUresult CAPTURE_INVALIDATED = 901;  // CUDA_ERROR_STREAM_CAPTURE_INVALIDATED
 const CUresult ILLEGAL_STATE = 401;        // CUDA_ERROR_ILLEGAL_STATE
+
+// Streams capturing now (a context-wide wait is refused meanwhile).
+std::atomic<int>& captures_open() {
+    static std::atomic<int> open{0};
+    return open;
+}
+
+// With DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES set, launches on a
+// capturing stream are refused as a driver may refuse a capture, so the
+// tests can check the host code's way back to launches one by one.
+bool refuse_captured_launches() {
+    static const bool refuse = std::getenv("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES") != nullptr;
+    return refuse;
+}
+
+// Refuses work a capture cannot hold: the capture is invalidated.
+CUresult refuse_in_capture(CUstream stream) {
+    static_cast<Stream*>(stream)->invalidated = true;
+    return CAPTURE_UNSUPPORTED;
+}
 
 CUresult launch_now(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::uint3 threads);
 
@@ -410,19 +434,30 @@ EXPORT CUresult cuDevicePrimaryCtxRetain(CUcontext* context, CUdevice) { *contex
 EXPORT CUresult cuDevicePrimaryCtxRelease_v2(CUdevice) { return SUCCESS; }
 EXPORT CUresult cuCtxSetCurrent(CUcontext) { return SUCCESS; }
 EXPORT CUresult cuCtxGetCurrent(CUcontext* context) { *context = &the_context; return SUCCESS; }
-EXPORT CUresult cuCtxSynchronize() { counts().call("wait", 0); return SUCCESS; }
+EXPORT CUresult cuCtxSynchronize() {
+    if (captures_open() > 0) return CAPTURE_UNSUPPORTED;
+    counts().call("wait", 0);
+    return SUCCESS;
+}
 EXPORT CUresult cuCtxGetStreamPriorityRange(int* least, int* greatest) { *least = *greatest = 0; return SUCCESS; }
 
 EXPORT CUresult cuStreamCreate(CUstream* stream, unsigned) { *stream = new Stream(); return SUCCESS; }
 EXPORT CUresult cuStreamCreateWithPriority(CUstream* stream, unsigned, int) { *stream = new Stream(); return SUCCESS; }
 EXPORT CUresult cuStreamDestroy_v2(CUstream stream) { delete static_cast<Stream*>(stream); return SUCCESS; }
 EXPORT CUresult cuStreamSynchronize(CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     counts().call("wait", 0);
     return SUCCESS;
 }
-EXPORT CUresult cuStreamWaitEvent(CUstream, CUevent, unsigned) { counts().call("stream_wait_event", 0); return SUCCESS; }
-EXPORT CUresult cuStreamQuery(CUstream) { return SUCCESS; }
+EXPORT CUresult cuStreamWaitEvent(CUstream stream, CUevent, unsigned) {
+    if (capturing(stream)) return refuse_in_capture(stream);  // no events are captured here
+    counts().call("stream_wait_event", 0);
+    return SUCCESS;
+}
+EXPORT CUresult cuStreamQuery(CUstream stream) {
+    if (capturing(stream)) return refuse_in_capture(stream);
+    return SUCCESS;
+}
 
 EXPORT CUresult cuEventCreate(CUevent* event, unsigned) {
     counts().call("event_create", 0);
@@ -430,7 +465,11 @@ EXPORT CUresult cuEventCreate(CUevent* event, unsigned) {
     return SUCCESS;
 }
 EXPORT CUresult cuEventDestroy_v2(CUevent event) { delete static_cast<int*>(event); return SUCCESS; }
-EXPORT CUresult cuEventRecord(CUevent, CUstream) { counts().call("event_record", 0); return SUCCESS; }
+EXPORT CUresult cuEventRecord(CUevent, CUstream stream) {
+    if (capturing(stream)) return refuse_in_capture(stream);
+    counts().call("event_record", 0);
+    return SUCCESS;
+}
 EXPORT CUresult cuEventQuery(CUevent) { return SUCCESS; }
 EXPORT CUresult cuEventSynchronize(CUevent) { counts().call("wait", 0); return SUCCESS; }
 EXPORT CUresult cuEventElapsedTime(float* ms, CUevent, CUevent) { *ms = 0; return SUCCESS; }
@@ -450,12 +489,12 @@ static CUresult allocate(CUdeviceptr* pointer, size_t bytes) {
 }
 EXPORT CUresult cuMemAlloc_v2(CUdeviceptr* pointer, size_t bytes) { return allocate(pointer, bytes); }
 EXPORT CUresult cuMemAllocAsync(CUdeviceptr* pointer, size_t bytes, CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     return allocate(pointer, bytes);
 }
 EXPORT CUresult cuMemFree_v2(CUdeviceptr pointer) { std::free((void*)pointer); return SUCCESS; }
 EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     std::free((void*)pointer);
     return SUCCESS;
 }
@@ -484,7 +523,7 @@ EXPORT CUresult cuMemcpyHtoD_v2(CUdeviceptr to, const void* from, size_t n) {
     return SUCCESS;
 }
 EXPORT CUresult cuMemcpyHtoDAsync_v2(CUdeviceptr to, const void* from, size_t n, CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     return cuMemcpyHtoD_v2(to, from, n);
 }
 EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
@@ -494,7 +533,7 @@ EXPORT CUresult cuMemcpyDtoH_v2(void* to, CUdeviceptr from, size_t n) {
     return SUCCESS;
 }
 EXPORT CUresult cuMemcpyDtoHAsync_v2(void* to, CUdeviceptr from, size_t n, CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     return cuMemcpyDtoH_v2(to, from, n);
 }
 EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
@@ -557,6 +596,7 @@ EXPORT CUresult cuLaunchKernel(CUfunction function, unsigned gx, unsigned gy, un
     }
     const dm_emu::uint3 grid{gx, gy, gz}, threads{bx, by, bz};
     if (Graph* graph = capturing(stream)) {
+        if (refuse_captured_launches()) return refuse_in_capture(stream);
         Operation op{Operation::LAUNCH};
         op.kernel = &kernel;
         op.grid = grid;
@@ -594,11 +634,20 @@ EXPORT CUresult cuStreamBeginCapture_v2(CUstream stream, int) {
     Stream& s = *static_cast<Stream*>(stream);
     if (s.capture) return ILLEGAL_STATE;
     s.capture = new Graph();
+    s.invalidated = false;
+    captures_open() += 1;
     return SUCCESS;
 }
 EXPORT CUresult cuStreamEndCapture(CUstream stream, void** graph) {
     if (!capturing(stream)) return ILLEGAL_STATE;
     Stream& s = *static_cast<Stream*>(stream);
+    captures_open() -= 1;
+    *graph = nullptr;
+    if (s.invalidated) {
+        delete s.capture;
+        s.capture = nullptr;
+        return CAPTURE_INVALIDATED;
+    }
     *graph = s.capture;
     s.capture = nullptr;
     counts().call("graph_capture", 0);
@@ -614,7 +663,7 @@ EXPORT CUresult cuGraphInstantiateWithFlags(void** exec, void* graph, unsigned l
 }
 EXPORT CUresult cuGraphUpload(void*, CUstream) { return SUCCESS; }
 EXPORT CUresult cuGraphLaunch(void* exec, CUstream stream) {
-    if (capturing(stream)) return CAPTURE_UNSUPPORTED;
+    if (capturing(stream)) return refuse_in_capture(stream);
     counts().call("graph_launch", 0);
     for (const Operation& op : static_cast<Graph*>(exec)->operations) {
         CUresult result = SUCCESS;

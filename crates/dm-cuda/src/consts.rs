@@ -6,7 +6,7 @@ use dm_mpm::state::Consts;
 use dm_mpm::{ActuatorConfig, Real};
 
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug)]
 pub struct KernelConsts<T> {
     dt: T,
     dx: T,
@@ -85,6 +85,56 @@ impl<T: Real> KernelConsts<T> {
                 (true, _) => 1,
             },
         }
+    }
+}
+
+impl<T: Real> KernelConsts<T> {
+    /// Every field's bits (floats widened to f64 exactly), so that two
+    /// sets of constants compare bit for bit: NaN equals itself and −0
+    /// differs from +0, as in what a kernel computes from them.
+    fn bits(&self) -> Vec<u64> {
+        let floats = [
+            self.dt,
+            self.dx,
+            self.inv_dx,
+            self.grid_damping,
+            self.particle_damping_factor,
+            self.svd_lo,
+            self.svd_hi,
+            self.plastic_lo,
+            self.plastic_hi,
+            self.floor_limit,
+            self.floor_friction,
+            self.drag_linear,
+            self.drag_quadratic,
+            self.empty_node_mass,
+            self.kp,
+            self.kd,
+        ]
+        .into_iter()
+        .chain(self.origin)
+        .chain(self.gravity)
+        .chain(self.clip_lo)
+        .chain(self.clip_hi)
+        .chain(self.floor_up);
+        let integers = [
+            self.res,
+            self.wall_cells,
+            self.has_plastic,
+            self.has_floor,
+            self.pure_neo_hookean,
+            self.actuator_mode,
+        ];
+        floats
+            .map(|x| x.to_f64().to_bits())
+            .chain(integers.map(|i| i as u64))
+            .collect()
+    }
+
+    /// Whether `other` holds the same bits in every field: a graph that
+    /// baked these constants in computes the same with `other`.
+    pub(crate) fn same_bits(&self, other: &Self) -> bool {
+        self.bits() == other.bits()
     }
 }
 

@@ -7,9 +7,9 @@ use crate::error::CudaError;
 use crate::frame::DeviceFrameTape;
 use crate::kernels::Precision;
 use crate::launch::{Laps, Launcher, MaterialBuffers, ParticleBuffers, SortBuffers, launch_for};
-use cudarc::driver::sys::{CUgraphInstantiate_flags, CUstreamCaptureMode};
+use cudarc::driver::sys::{self, CUgraphInstantiate_flags, CUresult, CUstreamCaptureMode};
 use cudarc::driver::{
-    CudaGraph, CudaSlice, CudaStream, DeviceRepr, PushKernelArg, ValidAsZeroBits,
+    CudaSlice, CudaStream, DeviceRepr, DriverError, PushKernelArg, ValidAsZeroBits, result,
 };
 use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
@@ -90,14 +90,18 @@ pub struct CudaWorld<T: DeviceReal> {
     pub(crate) adjoint_seconds: Option<AdjointSeconds>,
     /// The adjoint's buffers, once a backward pass has run.
     pub(crate) adjoint: Option<AdjointBuffers<T>>,
-    /// The last frame's untaped substeps as a CUDA graph.
-    substep_graph: Option<SubstepGraph<T>>,
+    /// Frames' untaped substeps as CUDA graphs, the latest last (at most
+    /// [`GRAPHS_KEPT`]: a fit alternates taped and untaped rollouts).
+    substep_graphs: Vec<SubstepGraph<T>>,
 }
+
+/// Graphs a world keeps.
+const GRAPHS_KEPT: usize = 2;
 
 /// Substeps captured as a CUDA graph and what the capture baked in: the
 /// constants passed by value, the substep indices and the stride of the
 /// anchors. The buffers it reads keep their addresses; a buffer that is
-/// reallocated drops the graph.
+/// reallocated drops the graphs.
 #[derive(Debug)]
 struct SubstepGraph<T> {
     consts: KernelConsts<T>,
@@ -106,8 +110,12 @@ struct SubstepGraph<T> {
     graph: OwnedGraph,
 }
 
-/// A [`CudaGraph`] owned by one world.
-struct OwnedGraph(CudaGraph);
+/// A captured graph and its executable, owned by one world.
+struct OwnedGraph {
+    graph: sys::CUgraph,
+    exec: sys::CUgraphExec,
+    stream: Arc<CudaStream>,
+}
 
 // SAFETY: the graph is reached only through `&mut CudaWorld`, so calls on
 // it are serialised, which is all the driver asks of a graph used from
@@ -115,9 +123,114 @@ struct OwnedGraph(CudaGraph);
 unsafe impl Send for OwnedGraph {}
 unsafe impl Sync for OwnedGraph {}
 
+impl OwnedGraph {
+    /// Instantiates `graph`, which it then owns (destroyed on failure).
+    fn instantiate(graph: sys::CUgraph, stream: Arc<CudaStream>) -> Result<Self, DriverError> {
+        // SAFETY: `graph` is a live graph just captured and owned here.
+        match unsafe { result::graph::instantiate(graph, CUgraphInstantiate_flags(0)) } {
+            Ok(exec) => Ok(Self {
+                graph,
+                exec,
+                stream,
+            }),
+            Err(error) => {
+                // SAFETY: as above; nothing else holds it.
+                let _ = unsafe { result::graph::destroy(graph) };
+                Err(error)
+            }
+        }
+    }
+
+    fn launch(&self) -> Result<(), CudaError> {
+        self.stream.context().bind_to_thread()?;
+        // SAFETY: the executable is alive and its nodes read buffers of the
+        // world that owns it, at the addresses they had when captured.
+        unsafe { result::graph::launch(self.exec, self.stream.cu_stream()) }?;
+        Ok(())
+    }
+}
+
+impl Drop for OwnedGraph {
+    fn drop(&mut self) {
+        // SAFETY: both handles are owned here and destroyed once; an
+        // executable still running is freed by the driver when it ends.
+        unsafe {
+            let _ = result::graph::exec_destroy(self.exec);
+            let _ = result::graph::destroy(self.graph);
+        }
+    }
+}
+
 impl std::fmt::Debug for OwnedGraph {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("CudaGraph")
+    }
+}
+
+/// An open capture on a stream, ended when dropped: an error or a panic
+/// while capturing must not leave the stream capturing.
+struct Capture<'a> {
+    stream: &'a CudaStream,
+    open: bool,
+}
+
+impl<'a> Capture<'a> {
+    /// Starts capturing `stream`'s work from this thread (thread-local
+    /// mode: other threads' worlds go on meanwhile).
+    fn begin(stream: &'a CudaStream) -> Result<Self, DriverError> {
+        stream.context().bind_to_thread()?;
+        let mode = CUstreamCaptureMode::CU_STREAM_CAPTURE_MODE_THREAD_LOCAL;
+        // SAFETY: the stream is alive and this thread's context is its own.
+        unsafe { result::stream::begin_capture(stream.cu_stream(), mode) }?;
+        Ok(Self { stream, open: true })
+    }
+
+    /// Ends the capture and returns the graph. Calls the driver directly:
+    /// cudarc's `end_capture` first reports a pending error of the
+    /// context and would then leave the capture open.
+    fn end(mut self) -> Result<sys::CUgraph, DriverError> {
+        self.open = false;
+        // SAFETY: the stream is capturing, begun on this thread.
+        let graph = unsafe { result::stream::end_capture(self.stream.cu_stream()) }?;
+        if graph.is_null() {
+            return Err(DriverError(CUresult::CUDA_ERROR_STREAM_CAPTURE_INVALIDATED));
+        }
+        Ok(graph)
+    }
+}
+
+impl Drop for Capture<'_> {
+    fn drop(&mut self) {
+        if self.open {
+            // SAFETY: as in `end`; the partial graph is destroyed unused.
+            if let Ok(graph) = unsafe { result::stream::end_capture(self.stream.cu_stream()) }
+                && !graph.is_null()
+            {
+                let _ = unsafe { result::graph::destroy(graph) };
+            }
+        }
+    }
+}
+
+/// Whether `error` is the driver refusing a capture or a graph, rather
+/// than a failure the substeps' launches would meet anyway.
+fn capture_refused(error: &CudaError) -> bool {
+    use CUresult::*;
+    match error {
+        CudaError::Driver(DriverError(code)) => matches!(
+            code,
+            CUDA_ERROR_STREAM_CAPTURE_UNSUPPORTED
+                | CUDA_ERROR_STREAM_CAPTURE_INVALIDATED
+                | CUDA_ERROR_STREAM_CAPTURE_MERGE
+                | CUDA_ERROR_STREAM_CAPTURE_UNMATCHED
+                | CUDA_ERROR_STREAM_CAPTURE_UNJOINED
+                | CUDA_ERROR_STREAM_CAPTURE_ISOLATION
+                | CUDA_ERROR_STREAM_CAPTURE_IMPLICIT
+                | CUDA_ERROR_STREAM_CAPTURE_WRONG_THREAD
+                | CUDA_ERROR_NOT_SUPPORTED
+                | CUDA_ERROR_ILLEGAL_STATE
+        ),
+        _ => false,
     }
 }
 
@@ -169,7 +282,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             stage_seconds: None,
             adjoint_seconds: None,
             adjoint: None,
-            substep_graph: None,
+            substep_graphs: Vec::new(),
         };
         world.upload_couplings()?;
         Ok(world)
@@ -323,7 +436,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         self.couplings.anchor = stream.clone_htod(anchor)?;
         self.couplings.rest_offset = stream.clone_htod(&rest)?;
         self.couplings_on_device = anchor.len();
-        self.substep_graph = None;
+        self.substep_graphs.clear();
         Ok(())
     }
 
@@ -416,7 +529,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             moved |= overwrite(&stream, &mut c.anchor_end, &ends)?;
             moved |= overwrite(&stream, &mut c.anchor_v, &flat(&path.velocity))?;
             if moved {
-                self.substep_graph = None;
+                self.substep_graphs.clear();
             }
         }
         let k = self.kernel_consts();
@@ -539,9 +652,10 @@ impl<T: DeviceReal> CudaWorld<T> {
     }
 
     /// Runs `substeps` of a frame as one CUDA graph launch, capturing the
-    /// graph first where the last one baked in other constants, substeps
-    /// or anchors. Returns false, having run nothing, where graphs are off
-    /// (also while stages are timed: timing waits between launches).
+    /// graph first where none kept baked in these constants, substeps and
+    /// anchors. Returns false, having run nothing, where graphs are off
+    /// (also while stages are timed: timing waits between launches) or
+    /// the driver refused the capture (graphs are then given up).
     fn replay_substeps(
         &mut self,
         k: &KernelConsts<T>,
@@ -551,30 +665,32 @@ impl<T: DeviceReal> CudaWorld<T> {
         if substeps.is_empty() || self.stage_seconds.is_some() || !self.device.graphs_enabled() {
             return Ok(false);
         }
-        let current = self.substep_graph.as_ref().is_some_and(|g| {
-            g.consts == *k && g.substeps == substeps && g.anchor_stride == anchor_stride
+        let kept = self.substep_graphs.iter().position(|g| {
+            g.consts.same_bits(k) && g.substeps == substeps && g.anchor_stride == anchor_stride
         });
-        if !current {
-            self.substep_graph = None;
-            match self.capture_substeps(k, substeps.clone(), anchor_stride) {
+        let index = match kept {
+            Some(index) => index,
+            None => match self.capture_substeps(k, substeps.clone(), anchor_stride) {
                 Ok(graph) => {
-                    self.substep_graph = Some(SubstepGraph {
+                    if self.substep_graphs.len() == GRAPHS_KEPT {
+                        self.substep_graphs.remove(0);
+                    }
+                    self.substep_graphs.push(SubstepGraph {
                         consts: *k,
                         substeps,
                         anchor_stride,
-                        graph: OwnedGraph(graph),
+                        graph,
                     });
+                    self.substep_graphs.len() - 1
                 }
-                Err(error) => {
+                Err(error) if capture_refused(&error) => {
                     self.device.give_up_graphs(&error);
                     return Ok(false);
                 }
-            }
-        }
-        let Some(graph) = &self.substep_graph else {
-            return Ok(false);
+                Err(error) => return Err(error),
+            },
         };
-        graph.graph.0.launch()?;
+        self.substep_graphs[index].graph.launch()?;
         Ok(true)
     }
 
@@ -585,15 +701,14 @@ impl<T: DeviceReal> CudaWorld<T> {
         k: &KernelConsts<T>,
         substeps: Range<usize>,
         anchor_stride: Option<usize>,
-    ) -> Result<CudaGraph, CudaError> {
+    ) -> Result<OwnedGraph, CudaError> {
         let stream = self.device.stream().clone();
-        stream.begin_capture(CUstreamCaptureMode::CU_STREAM_CAPTURE_MODE_THREAD_LOCAL)?;
-        let launched = substeps
-            .into_iter()
-            .try_for_each(|s| self.launch_substep(k, s, anchor_stride.map(|a| s * a)));
-        let captured = stream.end_capture(CUgraphInstantiate_flags(0));
-        launched?;
-        captured?.ok_or_else(|| CudaError::Unsupported("a graph capture recorded nothing".into()))
+        let capture = Capture::begin(&stream)?;
+        for s in substeps {
+            self.launch_substep(k, s, anchor_stride.map(|a| s * a))?;
+        }
+        let graph = capture.end()?;
+        Ok(OwnedGraph::instantiate(graph, stream.clone())?)
     }
 
     /// Reads the failure key (waiting for the GPU) and turns a recorded

@@ -69,6 +69,9 @@ enum Command {
         /// Frames simulated (the first and last are compared).
         #[arg(long, default_value_t = 10)]
         frames: usize,
+        /// Compare the positions only: no adjoint and no residual network.
+        #[arg(long)]
+        positions_only: bool,
     },
     /// Forward + backward of one truncated-BPTT window on the reference
     /// block (Neo-Hookean); loss = mean |x|² after the window; gradient
@@ -217,7 +220,11 @@ fn main() -> Result<()> {
                 rayon::current_num_threads()
             );
         }
-        Command::CudaParity { particles, frames } => cuda::parity(particles, frames)?,
+        Command::CudaParity {
+            particles,
+            frames,
+            positions_only,
+        } => cuda::parity(particles, frames, positions_only)?,
         Command::Grad {
             particles,
             window,

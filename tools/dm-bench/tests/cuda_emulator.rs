@@ -73,16 +73,34 @@ fn build_emulator(dir: &Path) -> PathBuf {
     panic!("no C++ compiler found (tried {compilers:?}); set CXX");
 }
 
+/// The emulator, built once for the tests of this file (they run at once).
+fn emulator() -> &'static Path {
+    static LIBRARY: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    LIBRARY.get_or_init(|| {
+        build_emulator(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"))
+    })
+}
+
+/// Calls of `kind` in the emulator's counts file.
+fn calls(counts: &str, kind: &str) -> u64 {
+    counts
+        .lines()
+        .find_map(|line| line.strip_prefix(kind)?.strip_prefix(' '))
+        .and_then(|rest| rest.split(' ').next()?.parse().ok())
+        .unwrap_or(0)
+}
+
 #[test]
 fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
-    let library = build_emulator(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"));
+    let library = emulator();
     let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator-counts.txt");
     let _ = std::fs::remove_file(&counts);
     let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
         .args(["cuda-parity", "--particles", "400", "--frames", "2"])
-        .env("LD_PRELOAD", &library)
+        .env("LD_PRELOAD", library)
         .env("DM_CUDA_EMULATOR_COUNTS", &counts)
         .env_remove("DM_CUDA_GRAPHS")
+        .env_remove("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES")
         .output()
         .expect("running dm-bench cuda-parity");
     let stdout = String::from_utf8_lossy(&output.stdout);
@@ -97,13 +115,7 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
     );
     // The untaped substeps ran as CUDA graphs, captured and replayed.
     let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
-    let calls = |kind: &str| -> u64 {
-        counts
-            .lines()
-            .find_map(|line| line.strip_prefix(kind)?.strip_prefix(' '))
-            .and_then(|rest| rest.split(' ').next()?.parse().ok())
-            .unwrap_or(0)
-    };
+    let calls = |kind: &str| calls(&counts, kind);
     assert!(
         calls("graph_capture") > 0 && calls("graph_launch") > calls("graph_capture"),
         "no CUDA graph was captured and replayed:\n{counts}\n{stderr}"
@@ -130,4 +142,50 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
             );
         }
     }
+}
+
+/// Where the driver refuses a capture (here every launch while capturing),
+/// the world says so once, gives up graphs and launches the substeps one
+/// by one, with the same positions.
+#[test]
+fn a_refused_capture_falls_back_to_launches_one_by_one() {
+    let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator-refused-counts.txt");
+    let _ = std::fs::remove_file(&counts);
+    let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
+        .args([
+            "cuda-parity",
+            "--particles",
+            "400",
+            "--frames",
+            "2",
+            "--positions-only",
+        ])
+        .env("LD_PRELOAD", emulator())
+        .env("DM_CUDA_EMULATOR_COUNTS", &counts)
+        .env("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES", "1")
+        .env_remove("DM_CUDA_GRAPHS")
+        .output()
+        .expect("running dm-bench cuda-parity");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        output.status.success(),
+        "cuda-parity with captures refused failed:\n{stdout}\n{stderr}"
+    );
+    assert_eq!(
+        stderr.matches("graph capture failed").count(),
+        1,
+        "the refusal was not reported once:\n{stderr}"
+    );
+    let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
+    assert_eq!(calls(&counts, "graph_launch"), 0, "a graph ran:\n{counts}");
+    assert!(
+        calls(&counts, "host_launch") > 0,
+        "nothing launched:\n{counts}"
+    );
+    assert_eq!(
+        stdout.matches(" — pass").count(),
+        4,
+        "not every position parity passed:\n{stdout}"
+    );
 }

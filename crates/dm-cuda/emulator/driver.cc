@@ -387,6 +387,17 @@ bool refuse_captured_launches() {
     return refuse;
 }
 
+// Adds a memset or a copy of `bytes` to a capture.
+CUresult record(Graph* graph, Operation op, CUdeviceptr to, CUdeviceptr from, size_t bytes,
+                const char* kind) {
+    op.to = to;
+    op.from = from;
+    op.bytes = bytes;
+    graph->operations.push_back(std::move(op));
+    counts().call(kind, bytes);
+    return SUCCESS;
+}
+
 // Refuses work a capture cannot hold: the capture is invalidated.
 CUresult refuse_in_capture(CUstream stream) {
     static_cast<Stream*>(stream)->invalidated = true;
@@ -507,12 +518,8 @@ EXPORT CUresult cuMemsetD8_v2(CUdeviceptr to, unsigned char value, size_t n) {
 EXPORT CUresult cuMemsetD8Async(CUdeviceptr to, unsigned char value, size_t n, CUstream stream) {
     if (Graph* graph = capturing(stream)) {
         Operation op{Operation::MEMSET};
-        op.to = to;
         op.value = value;
-        op.bytes = n;
-        graph->operations.push_back(std::move(op));
-        counts().call("captured_memset", n);
-        return SUCCESS;
+        return record(graph, std::move(op), to, 0, n, "captured_memset");
     }
     return cuMemsetD8_v2(to, value, n);
 }
@@ -544,13 +551,7 @@ EXPORT CUresult cuMemcpyDtoD_v2(CUdeviceptr to, CUdeviceptr from, size_t n) {
 }
 EXPORT CUresult cuMemcpyDtoDAsync_v2(CUdeviceptr to, CUdeviceptr from, size_t n, CUstream stream) {
     if (Graph* graph = capturing(stream)) {
-        Operation op{Operation::COPY};
-        op.to = to;
-        op.from = from;
-        op.bytes = n;
-        graph->operations.push_back(std::move(op));
-        counts().call("captured_dtod", n);
-        return SUCCESS;
+        return record(graph, Operation{Operation::COPY}, to, from, n, "captured_dtod");
     }
     return cuMemcpyDtoD_v2(to, from, n);
 }

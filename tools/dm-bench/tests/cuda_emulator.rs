@@ -90,31 +90,48 @@ fn calls(counts: &str, kind: &str) -> u64 {
         .unwrap_or(0)
 }
 
-#[test]
-fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
-    let library = emulator();
-    let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator-counts.txt");
+/// `dm-bench cuda-parity ARGS` under the emulator (captured launches
+/// refused where asked); asserts it succeeded and returns its stdout,
+/// stderr and the emulator's counts.
+fn parity_under_emulator(args: &[&str], refuse_captured_launches: bool) -> [String; 3] {
+    let name = if refuse_captured_launches {
+        "refused"
+    } else {
+        "graphs"
+    };
+    let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cuda-emulator-{name}.txt"));
     let _ = std::fs::remove_file(&counts);
-    let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
-        .args(["cuda-parity", "--particles", "400", "--frames", "2"])
-        .env("LD_PRELOAD", library)
+    let mut command = Command::new(env!("CARGO_BIN_EXE_dm-bench"));
+    command
+        .arg("cuda-parity")
+        .args(args)
+        .env("LD_PRELOAD", emulator())
         .env("DM_CUDA_EMULATOR_COUNTS", &counts)
         .env_remove("DM_CUDA_GRAPHS")
-        .env_remove("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES")
-        .output()
-        .expect("running dm-bench cuda-parity");
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    let stderr = String::from_utf8_lossy(&output.stderr);
+        .env_remove("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES");
+    if refuse_captured_launches {
+        command.env("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES", "1");
+    }
+    let output = command.output().expect("running dm-bench cuda-parity");
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
     assert!(
         output.status.success(),
-        "cuda-parity under the emulator failed:\n{stdout}\n{stderr}"
+        "cuda-parity {args:?} under the emulator failed:\n{stdout}\n{stderr}"
     );
+    let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
+    [stdout, stderr, counts]
+}
+
+#[test]
+fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
+    let [stdout, stderr, counts] =
+        parity_under_emulator(&["--particles", "400", "--frames", "2"], false);
     assert!(
         stdout.contains("CUDA emulator (CPU)"),
         "the parity ran on another device:\n{stdout}"
     );
     // The untaped substeps ran as CUDA graphs, captured and replayed.
-    let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
     let calls = |kind: &str| calls(&counts, kind);
     assert!(
         calls("graph_capture") > 0 && calls("graph_launch") > calls("graph_capture"),
@@ -149,35 +166,15 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
 /// by one, with the same positions.
 #[test]
 fn a_refused_capture_falls_back_to_launches_one_by_one() {
-    let counts = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator-refused-counts.txt");
-    let _ = std::fs::remove_file(&counts);
-    let output = Command::new(env!("CARGO_BIN_EXE_dm-bench"))
-        .args([
-            "cuda-parity",
-            "--particles",
-            "400",
-            "--frames",
-            "2",
-            "--positions-only",
-        ])
-        .env("LD_PRELOAD", emulator())
-        .env("DM_CUDA_EMULATOR_COUNTS", &counts)
-        .env("DM_CUDA_EMULATOR_REFUSE_CAPTURED_LAUNCHES", "1")
-        .env_remove("DM_CUDA_GRAPHS")
-        .output()
-        .expect("running dm-bench cuda-parity");
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        output.status.success(),
-        "cuda-parity with captures refused failed:\n{stdout}\n{stderr}"
+    let [stdout, stderr, counts] = parity_under_emulator(
+        &["--particles", "400", "--frames", "2", "--positions-only"],
+        true,
     );
     assert_eq!(
         stderr.matches("graph capture failed").count(),
         1,
         "the refusal was not reported once:\n{stderr}"
     );
-    let counts = std::fs::read_to_string(&counts).expect("the emulator's counts");
     assert_eq!(calls(&counts, "graph_launch"), 0, "a graph ran:\n{counts}");
     assert!(
         calls(&counts, "host_launch") > 0,

@@ -81,22 +81,19 @@ pub fn physics_only_options(options: &FitOptions) -> FitOptions {
 }
 
 /// Fits the physics-only model from `start` (the main fit's starting
-/// model; its network, if any, is removed) under `out/`[`CHECK_DIR`], resuming it with
-/// `resume`, and compares it with `fitted` (the main fit's model at the end
-/// of its dynamics stages). Returns the decision and the physics-only fit's
-/// final checkpoint, whose model, Adam state and history the main fit takes
-/// over when the network is dropped.
-pub fn check_residual(
+/// model; its network, if any, is removed) under `out/`[`CHECK_DIR`],
+/// resuming it with `resume`, and returns its final checkpoint, whose
+/// model, Adam state and history the main fit takes over when the network
+/// is dropped.
+pub fn fit_physics_only(
     bundle: &Bundle,
     options: &FitOptions,
     start: WorldModel,
-    fitted: &WorldModel,
     out: &Path,
     resume: bool,
     progress: &mut dyn FnMut(&str),
-) -> Result<(ResidualCheck, Checkpoint), FitError> {
+) -> Result<Checkpoint, FitError> {
     let dir = out.join(CHECK_DIR);
-    progress("residual check: fitting the same physics without the network");
     let mut sub_progress = |message: &str| progress(&format!("  [no network] {message}"));
     match fit_stages(
         bundle,
@@ -110,7 +107,36 @@ pub fn check_residual(
         FitOutcome::Finished(_) => {}
         FitOutcome::Paused { .. } => unreachable!("a fit without a step limit runs to the end"),
     }
-    let physics_only = Checkpoint::load(&dir.join(crate::run::CHECKPOINT_FILE))?;
+    Checkpoint::load(&dir.join(crate::run::CHECKPOINT_FILE))
+}
+
+/// Fits the physics-only model ([`fit_physics_only`]) and compares it with
+/// `fitted` (the main fit's model at the end of its dynamics stages).
+/// Returns the decision and the physics-only fit's final checkpoint.
+pub fn check_residual(
+    bundle: &Bundle,
+    options: &FitOptions,
+    start: WorldModel,
+    fitted: &WorldModel,
+    out: &Path,
+    resume: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(ResidualCheck, Checkpoint), FitError> {
+    progress("residual check: fitting the same physics without the network");
+    let physics_only = fit_physics_only(bundle, options, start, out, resume, progress)?;
+    let check = compare_with_physics_only(bundle, options, fitted, &physics_only, progress)?;
+    Ok((check, physics_only))
+}
+
+/// The check's decision: the train Track of `fitted` against that of the
+/// physics-only fit's model.
+pub fn compare_with_physics_only(
+    bundle: &Bundle,
+    options: &FitOptions,
+    fitted: &WorldModel,
+    physics_only: &Checkpoint,
+    progress: &mut dyn FnMut(&str),
+) -> Result<ResidualCheck, FitError> {
     let track_with = train_track(fitted, bundle, options)?;
     let track_without = train_track(&physics_only.model, bundle, options)?;
     let gain = 1.0 - track_with / track_without;
@@ -136,5 +162,5 @@ pub fn check_residual(
             )
         }
     ));
-    Ok((check, physics_only))
+    Ok(check)
 }

@@ -13,7 +13,10 @@ use crate::material_fit::{
     train_frame_losses_on, train_loss_on,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
-use crate::residual_check::{ResidualCheck, check_residual, physics_only_options};
+use crate::residual_check::{
+    ResidualCheck, check_residual, compare_with_physics_only, fit_physics_only,
+    physics_only_options,
+};
 use crate::rgb_stage::{DEFAULT_RGB_WEIGHT, RgbTerm};
 use crate::sensitivity::material_sensitivity;
 use dm_appearance::{AppearanceOptions, fit_appearance, load_appearance, save_appearance};
@@ -536,11 +539,31 @@ pub(crate) fn fit_stages(
             .cloned(),
         parts: Vec::new(),
         progress,
+        concurrent_check: None,
     };
     let mut state = run.start(initial)?;
     // Only once the options and the bundle have given a model: a refused run
     // leaves no empty output directory behind.
     std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
+    // On the GPU the check's physics-only fit runs beside this one from the
+    // start: both fits' worlds are small, and the GPU has room for both.
+    let dynamics = matches!(
+        state.stage,
+        Stage::Material1 | Stage::Gains | Stage::Material2 | Stage::Residual
+    );
+    if options.device == Device::Cuda
+        && stop_after.is_none()
+        && run_checks_residual(options)
+        && state.model.residual.is_some()
+        && state.residual_check.is_none()
+        && dynamics
+    {
+        (run.progress)(
+            "residual check: fitting the same physics without the network, beside this fit",
+        );
+        let start = run.check_start_model()?;
+        run.concurrent_check = Some(ConcurrentCheck::start(bundle, options, start, out, resume));
+    }
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut steps = 0;
     while state.stage != Stage::Done {
@@ -565,6 +588,7 @@ pub(crate) fn fit_stages(
         }
         *state.stage_seconds.entry(stage.into()).or_default() += rest;
         write_json_atomic(&checkpoint_path, &state)?;
+        run.relay_check_progress();
     }
     let clock = std::time::Instant::now();
     let mut report = run.final_report(&state)?;
@@ -597,6 +621,65 @@ struct FitRun<'a> {
     /// Parts of the current step timed on their own ([`StageTimes`]).
     parts: Vec<(&'static str, f64)>,
     progress: &'a mut dyn FnMut(&str),
+    /// The residual check's physics-only fit, when it runs beside this one.
+    concurrent_check: Option<ConcurrentCheck>,
+}
+
+/// The residual check's physics-only fit on a thread of its own, beside
+/// the main fit: the progress lines it has sent, and its checkpoint once
+/// it ends.
+struct ConcurrentCheck {
+    lines: std::sync::mpsc::Receiver<String>,
+    fit: Option<std::thread::JoinHandle<Result<Checkpoint, FitError>>>,
+}
+
+impl ConcurrentCheck {
+    fn start(
+        bundle: &Bundle,
+        options: &FitOptions,
+        start: WorldModel,
+        out: &Path,
+        resume: bool,
+    ) -> Self {
+        let (sender, lines) = std::sync::mpsc::channel();
+        let (bundle, options, out) = (bundle.clone(), options.clone(), out.to_path_buf());
+        let fit = std::thread::spawn(move || {
+            let mut progress = |line: &str| {
+                // The main fit has stopped listening only when it ended.
+                let _ = sender.send(line.to_string());
+            };
+            fit_physics_only(&bundle, &options, start, &out, resume, &mut progress)
+        });
+        Self {
+            lines,
+            fit: Some(fit),
+        }
+    }
+
+    /// Waits for the fit to end, passing its lines on; its checkpoint.
+    fn finish(mut self, progress: &mut dyn FnMut(&str)) -> Result<Checkpoint, FitError> {
+        let Some(fit) = self.fit.take() else {
+            unreachable!("`finish` consumes the check, and only it and `drop` take the fit")
+        };
+        let result = match fit.join() {
+            Ok(result) => result,
+            Err(panic) => std::panic::resume_unwind(panic),
+        };
+        for line in self.lines.try_iter() {
+            progress(&line);
+        }
+        result
+    }
+}
+
+impl Drop for ConcurrentCheck {
+    /// A main fit that ends early (an error) still waits for the check's
+    /// fit, so that nothing goes on writing behind the caller's back.
+    fn drop(&mut self) {
+        if let Some(fit) = self.fit.take() {
+            let _ = fit.join();
+        }
+    }
 }
 
 impl FitRun<'_> {
@@ -758,23 +841,29 @@ impl FitRun<'_> {
     /// threshold the fit goes on from the physics-only one, exactly as
     /// `--residual none` would have.
     fn residual_check(&mut self, state: &mut Checkpoint) -> Result<(), FitError> {
-        // Built as `--residual none` builds it: no network to make and strip.
-        let start = match &self.check_start {
-            Some(model) => model.clone(),
-            None => {
-                WorldModel::from_bundle(self.bundle, &physics_only_options(self.options).model)?
-            }
-        };
         let clock = std::time::Instant::now();
-        let (check, physics_only) = check_residual(
-            self.bundle,
-            self.options,
-            start,
-            &state.model,
-            self.out,
-            self.resume,
-            self.progress,
-        )?;
+        let (check, physics_only) = match self.concurrent_check.take() {
+            Some(concurrent) => {
+                let physics_only = concurrent.finish(self.progress)?;
+                let check = compare_with_physics_only(
+                    self.bundle,
+                    self.options,
+                    &state.model,
+                    &physics_only,
+                    self.progress,
+                )?;
+                (check, physics_only)
+            }
+            None => check_residual(
+                self.bundle,
+                self.options,
+                self.check_start_model()?,
+                &state.model,
+                self.out,
+                self.resume,
+                self.progress,
+            )?,
+        };
         self.parts
             .push(("residual_check", clock.elapsed().as_secs_f64()));
         if !check.kept {
@@ -786,6 +875,26 @@ impl FitRun<'_> {
         }
         state.residual_check = Some(check);
         Ok(())
+    }
+
+    /// Where the check's physics-only fit starts, built as `--residual
+    /// none` builds it: no network to make and strip.
+    fn check_start_model(&self) -> Result<WorldModel, FitError> {
+        Ok(match &self.check_start {
+            Some(model) => model.clone(),
+            None => {
+                WorldModel::from_bundle(self.bundle, &physics_only_options(self.options).model)?
+            }
+        })
+    }
+
+    /// Passes on the progress lines the concurrent check's fit has sent.
+    fn relay_check_progress(&mut self) {
+        if let Some(check) = &self.concurrent_check {
+            for line in check.lines.try_iter() {
+                (self.progress)(&line);
+            }
+        }
     }
 
     /// The actuator gains (CMA-ES, when there are evaluations to spend and

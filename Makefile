@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-scene fuzz clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-inputs gpu-scene fuzz clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -245,20 +245,36 @@ fuzz:
 # The GPU checks (docs/gpu.md): parity of the CUDA world against the CPU
 # world and substep throughput, from prebuilt release binaries, so the
 # folder GPU_BIN can be carried to a GPU machine without a Rust toolchain;
-# with the scene and model of `make gpu-scene` (10^5 particles) also
-# dm-sim and the playground's frame on the CPU and the GPU.
+# with the inputs of `make gpu-inputs` in GPU_INPUTS also dm-sim and the
+# playground's frame at 10^5 particles, the demo's fit and a plan, and the
+# demo's diagnosis, on the CPU and the GPU (FIT_DEFAULTS=1 adds dm-fit's
+# defaults; PARTS, CPU_REFERENCE and GRAPHS_AB: benches/gpu/check.sh).
 GPU_BIN ?= target/release
-GPU_SCENE ?= out/gpu/scene100k
-GPU_MODEL ?= out/gpu/model100k
+GPU_INPUTS ?= out/gpu
+GPU_SCENE ?= $(GPU_INPUTS)/scene100k
+GPU_MODEL ?= $(GPU_INPUTS)/model100k
 gpu-check:
-	@if [ -f $(GPU_MODEL)/model.json ]; then bash benches/gpu/check.sh $(GPU_BIN) $(GPU_SCENE) $(GPU_MODEL); \
-	  else bash benches/gpu/check.sh $(GPU_BIN); fi
+	@set --; [ -f $(GPU_MODEL)/model.json ] && set -- $(GPU_SCENE) $(GPU_MODEL); \
+	  if [ -z "$${FIT_SCENE:-}" ] && [ -f $(GPU_INPUTS)/scene/bundle.json ]; then export FIT_SCENE=$(GPU_INPUTS)/scene; fi; \
+	  if [ -z "$${DIAGNOSE_MODEL:-}" ] && [ -f $(GPU_INPUTS)/diag_model/model.json ]; then \
+	    export DIAGNOSE_MODEL=$(GPU_INPUTS)/diag_model DIAGNOSE_SCENE=$(GPU_INPUTS)/diag_scene; fi; \
+	  bash benches/gpu/check.sh $(GPU_BIN) "$$@"
 
-# A toy of 10^5 particles and its untrained model (small images: only the
-# simulation is timed).
+# The inputs of gpu-check, made by the binaries in GPU_BIN (so on a GPU
+# machine without a Rust toolchain too): a toy of 10^5 particles and its
+# untrained model (small images: only the simulation is timed), the demo's
+# scene and truth, and the diagnosis scene with the demo's quick fit; the
+# untrained model's probe runs on GPU_INPUTS_DEVICE.
+GPU_INPUTS_DEVICE ?= cpu
+gpu-inputs:
+	$(GPU_BIN)/dm-synth --preset toy --seed 7 --truth-particles 100000 --bundle-particles 100000 --width 160 --height 120 --out $(GPU_SCENE) --truth $(GPU_SCENE).truth.json
+	$(GPU_BIN)/dm-fit $(GPU_SCENE) --out $(GPU_MODEL) --iters 0 --stage2-iters 0 --gain-evals 0 --residual none --rgb-iters 0 --device $(GPU_INPUTS_DEVICE)
+	$(GPU_BIN)/dm-synth --preset $(PRESET) --seed $(SEED) --out $(GPU_INPUTS)/scene --truth $(GPU_INPUTS)/scene.truth.json
+	$(GPU_BIN)/dm-synth $(DIAG_SCENE) --out $(GPU_INPUTS)/diag_scene --truth $(GPU_INPUTS)/diag_scene.truth.json
+	$(GPU_BIN)/dm-fit $(GPU_INPUTS)/diag_scene --out $(GPU_INPUTS)/diag_model $(DIAG_FIT)
+
 gpu-scene: build
-	./target/release/dm-synth --preset toy --seed 7 --truth-particles 100000 --bundle-particles 100000 --width 160 --height 120 --out $(GPU_SCENE) --truth $(GPU_SCENE).truth.json
-	./target/release/dm-fit $(GPU_SCENE) --out $(GPU_MODEL) --iters 0 --stage2-iters 0 --gain-evals 0 --residual none --rgb-iters 0
+	$(MAKE) gpu-inputs
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV) $(PY_VENV)

@@ -546,7 +546,9 @@ pub(crate) fn fit_stages(
     // leaves no empty output directory behind.
     std::fs::create_dir_all(out).map_err(|e| dm_bundle::BundleError::io(out, "creating", &e))?;
     // On the GPU the check's physics-only fit runs beside this one from the
-    // start: both fits' worlds are small, and the GPU has room for both.
+    // start: both fits' worlds are small, and the GPU has room for both. Not
+    // from a rayon worker: waiting there for a thread whose own parallel
+    // loops need the workers could hold them all.
     let dynamics = matches!(
         state.stage,
         Stage::Material1 | Stage::Gains | Stage::Material2 | Stage::Residual
@@ -557,6 +559,7 @@ pub(crate) fn fit_stages(
         && state.model.residual.is_some()
         && state.residual_check.is_none()
         && dynamics
+        && rayon::current_thread_index().is_none()
     {
         (run.progress)(
             "residual check: fitting the same physics without the network, beside this fit",

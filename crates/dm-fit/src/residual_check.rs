@@ -22,6 +22,7 @@ use dm_model::metrics::{frame_errors, split_mean};
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::atomic::AtomicBool;
 
 /// Where the physics-only fit is written, under the model directory.
 pub const CHECK_DIR: &str = "residual_check";
@@ -84,15 +85,17 @@ pub fn physics_only_options(options: &FitOptions) -> FitOptions {
 /// model; its network, if any, is removed) under `out/`[`CHECK_DIR`],
 /// resuming it with `resume`, and returns its final checkpoint, whose
 /// model, Adam state and history the main fit takes over when the network
-/// is dropped.
+/// is dropped; `None` where `cancel` stopped it (after a step, its
+/// checkpoint resumable).
 pub fn fit_physics_only(
     bundle: &Bundle,
     options: &FitOptions,
     start: WorldModel,
     out: &Path,
     resume: bool,
+    cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(&str),
-) -> Result<Checkpoint, FitError> {
+) -> Result<Option<Checkpoint>, FitError> {
     let dir = out.join(CHECK_DIR);
     let mut sub_progress = |message: &str| progress(&format!("  [no network] {message}"));
     match fit_stages(
@@ -102,12 +105,15 @@ pub fn fit_physics_only(
         resume,
         None,
         Some(without_residual(start)),
+        cancel,
         &mut sub_progress,
     )? {
-        FitOutcome::Finished(_) => {}
-        FitOutcome::Paused { .. } => unreachable!("a fit without a step limit runs to the end"),
+        FitOutcome::Finished(_) => Ok(Some(Checkpoint::load(
+            &dir.join(crate::run::CHECKPOINT_FILE),
+        )?)),
+        // Without a step limit only `cancel` pauses it.
+        FitOutcome::Paused { .. } => Ok(None),
     }
-    Checkpoint::load(&dir.join(crate::run::CHECKPOINT_FILE))
 }
 
 /// Fits the physics-only model ([`fit_physics_only`]) and compares it with
@@ -123,7 +129,10 @@ pub fn check_residual(
     progress: &mut dyn FnMut(&str),
 ) -> Result<(ResidualCheck, Checkpoint), FitError> {
     progress("residual check: fitting the same physics without the network");
-    let physics_only = fit_physics_only(bundle, options, start, out, resume, progress)?;
+    let Some(physics_only) = fit_physics_only(bundle, options, start, out, resume, None, progress)?
+    else {
+        unreachable!("nothing cancels a fit without a cancel flag")
+    };
     let check = compare_with_physics_only(bundle, options, fitted, &physics_only, progress)?;
     Ok((check, physics_only))
 }

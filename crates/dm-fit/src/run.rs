@@ -26,6 +26,8 @@ use dm_model::{ActuatorChoice, ModelOptions, WorldModel};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Options of `dm-fit`: its CLI and the run record in `fit_report.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
@@ -495,7 +497,9 @@ pub fn run_fit(
     stop_after: Option<usize>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
-    fit_stages(bundle, options, out, resume, stop_after, None, progress)
+    fit_stages(
+        bundle, options, out, resume, stop_after, None, None, progress,
+    )
 }
 
 /// The same stages from a given starting model instead of the bundle's
@@ -509,12 +513,22 @@ pub fn run_fit_from(
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
-    fit_stages(bundle, options, out, false, None, Some(initial), progress)
+    fit_stages(
+        bundle,
+        options,
+        out,
+        false,
+        None,
+        Some(initial),
+        None,
+        progress,
+    )
 }
 
 /// The stages of one fit, from `initial` (else the bundle's default model)
 /// or, with `resume`, from the checkpoint in `out`; pauses after
-/// `stop_after` checkpointed steps. Each step is one method of [`FitRun`];
+/// `stop_after` checkpointed steps, or after the step during which `cancel`
+/// was set. Each step is one method of [`FitRun`];
 /// the [`Checkpoint`] carries everything that flows from one step to the
 /// next and is written after each.
 pub(crate) fn fit_stages(
@@ -524,6 +538,7 @@ pub(crate) fn fit_stages(
     resume: bool,
     stop_after: Option<usize>,
     initial: Option<WorldModel>,
+    cancel: Option<&AtomicBool>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
     options.validate_track_noise()?;
@@ -570,7 +585,9 @@ pub(crate) fn fit_stages(
     let checkpoint_path = out.join(CHECKPOINT_FILE);
     let mut steps = 0;
     while state.stage != Stage::Done {
-        if stop_after.is_some_and(|n| steps >= n) {
+        if stop_after.is_some_and(|n| steps >= n)
+            || cancel.is_some_and(|c| c.load(Ordering::Relaxed))
+        {
             return Ok(FitOutcome::Paused {
                 stage: state.stage,
                 iteration: state.iteration,
@@ -629,11 +646,14 @@ struct FitRun<'a> {
 }
 
 /// The residual check's physics-only fit on a thread of its own, beside
-/// the main fit: the progress lines it has sent, and its checkpoint once
-/// it ends.
+/// the main fit: the progress lines it sends, and its checkpoint once it
+/// ends.
 struct ConcurrentCheck {
     lines: std::sync::mpsc::Receiver<String>,
-    fit: Option<std::thread::JoinHandle<Result<Checkpoint, FitError>>>,
+    /// Set when the main fit ends without the check (an error): the
+    /// physics-only fit then stops after its current step, resumable.
+    cancel: Arc<AtomicBool>,
+    fit: Option<std::thread::JoinHandle<Result<Option<Checkpoint>, FitError>>>,
 }
 
 impl ConcurrentCheck {
@@ -645,41 +665,57 @@ impl ConcurrentCheck {
         resume: bool,
     ) -> Self {
         let (sender, lines) = std::sync::mpsc::channel();
+        let cancel = Arc::new(AtomicBool::new(false));
         let (bundle, options, out) = (bundle.clone(), options.clone(), out.to_path_buf());
+        let stop = cancel.clone();
         let fit = std::thread::spawn(move || {
             let mut progress = |line: &str| {
                 // The main fit has stopped listening only when it ended.
                 let _ = sender.send(line.to_string());
             };
-            fit_physics_only(&bundle, &options, start, &out, resume, &mut progress)
+            fit_physics_only(
+                &bundle,
+                &options,
+                start,
+                &out,
+                resume,
+                Some(&stop),
+                &mut progress,
+            )
         });
         Self {
             lines,
+            cancel,
             fit: Some(fit),
         }
     }
 
-    /// Waits for the fit to end, passing its lines on; its checkpoint.
+    /// Passes the fit's lines on as they come until it ends; its
+    /// checkpoint.
     fn finish(mut self, progress: &mut dyn FnMut(&str)) -> Result<Checkpoint, FitError> {
+        // Ends when the fit's thread drops its sender (a panic included).
+        for line in self.lines.iter() {
+            progress(&line);
+        }
         let Some(fit) = self.fit.take() else {
             unreachable!("`finish` consumes the check, and only it and `drop` take the fit")
         };
-        let result = match fit.join() {
-            Ok(result) => result,
+        match fit.join() {
+            Ok(Ok(Some(checkpoint))) => Ok(checkpoint),
+            Ok(Ok(None)) => unreachable!("only `drop` cancels the check's fit"),
+            Ok(Err(error)) => Err(error),
             Err(panic) => std::panic::resume_unwind(panic),
-        };
-        for line in self.lines.try_iter() {
-            progress(&line);
         }
-        result
     }
 }
 
 impl Drop for ConcurrentCheck {
-    /// A main fit that ends early (an error) still waits for the check's
-    /// fit, so that nothing goes on writing behind the caller's back.
+    /// A main fit that ends early (an error) stops the check's fit after
+    /// its current step and waits for it: nothing goes on writing behind
+    /// the caller's back.
     fn drop(&mut self) {
         if let Some(fit) = self.fit.take() {
+            self.cancel.store(true, Ordering::Relaxed);
             let _ = fit.join();
         }
     }

@@ -92,7 +92,7 @@ impl<T: Real> KernelConsts<T> {
     /// Every field's bits (floats widened to f64 exactly), so that two
     /// sets of constants compare bit for bit: NaN equals itself and −0
     /// differs from +0, as in what a kernel computes from them.
-    fn bits(&self) -> Vec<u64> {
+    fn bits(&self) -> impl Iterator<Item = u64> {
         let floats = [
             self.dt,
             self.dx,
@@ -128,13 +128,12 @@ impl<T: Real> KernelConsts<T> {
         floats
             .map(|x| x.to_f64().to_bits())
             .chain(integers.map(|i| i as u64))
-            .collect()
     }
 
     /// Whether `other` holds the same bits in every field: a graph that
     /// baked these constants in computes the same with `other`.
     pub(crate) fn same_bits(&self, other: &Self) -> bool {
-        self.bits() == other.bits()
+        self.bits().eq(other.bits())
     }
 }
 

@@ -708,7 +708,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             self.launch_substep(k, s, anchor_stride.map(|a| s * a))?;
         }
         let graph = capture.end()?;
-        Ok(OwnedGraph::instantiate(graph, stream.clone())?)
+        Ok(OwnedGraph::instantiate(graph, stream)?)
     }
 
     /// Reads the failure key (waiting for the GPU) and turns a recorded

@@ -172,6 +172,8 @@ pub struct ClipRequest {
     pub video: bool,
     /// Frames per second of the video (`None`: the scene's).
     pub fps: Option<f64>,
+    /// Where the rollout's MPM world and residual network run.
+    pub device: dm_model::device::Device,
 }
 
 /// Frames of an orbit around the object at rest (no bundle to roll out).
@@ -250,7 +252,9 @@ pub fn render_clip(
     let centre = crate::views::particle_centre(&model.particles);
     let view_cameras = crate::views::cameras_for(request.view, &cameras, &centre, up, end - start)?;
     let positions = match bundle {
-        Some(b) => Some(model.rollout(b, end, &mut |t| progress("rollout", t, end - 1))?),
+        Some(b) => Some(model.rollout_on(b, end, request.device, &mut |t| {
+            progress("rollout", t, end - 1)
+        })?),
         None => None,
     };
     let mut follower = SplatFollower::new(gaussians, &model.particles)?;

@@ -11,6 +11,7 @@
 mod backward;
 pub mod consts;
 mod device;
+pub mod emulator;
 mod error;
 mod frame;
 pub mod kernels;

@@ -8,6 +8,7 @@ use dm_appearance::SplatFollower;
 use dm_appearance::quality::{alpha_mask, to_rgb8};
 use dm_bundle::{Bundle, MaskKind};
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_model::preview::bundle_camera;
 use dm_view::{Camera, RenderOptions, Splat, render};
@@ -25,6 +26,8 @@ pub struct EvalOptions {
     /// along the rollout by LBS and rendered for the image metrics; `None`:
     /// the particles are drawn as spheres ([`render_prediction`]).
     pub splats: Option<dm_splat::Gaussians<f32>>,
+    /// Where the rollout's MPM world and residual network run.
+    pub device: Device,
 }
 
 /// Which renderer made the predicted images (`run.renderer` in metrics.json).
@@ -120,7 +123,9 @@ pub fn evaluate(
         });
     }
     let start = Instant::now();
-    let rollout = model.rollout(bundle, frames, &mut |t| progress("rollout", t))?;
+    let rollout = model.rollout_on(bundle, frames, options.device, &mut |t| {
+        progress("rollout", t)
+    })?;
     let rollout_seconds = start.elapsed().as_secs_f64();
     let mut lpips_seconds = 0.0;
     let errors = frame_errors(&rollout, model.surface_count, &bundle.tracks);

@@ -28,6 +28,8 @@ pub struct RunInfo {
     /// What drew the predicted images: `gaussian_splats` (the model's
     /// fitted splats, MODEL_DIR/gaussians.ply) or `particle_spheres`.
     pub renderer: String,
+    /// Where the rollout ran: `cpu` or `cuda`.
+    pub device: dm_model::device::Device,
     pub rollout_and_metrics_seconds: f64,
     pub lpips_ms_per_frame: Option<f64>,
 }
@@ -114,7 +116,7 @@ pub fn markdown(metrics: &Metrics, run: &RunInfo) -> String {
     let _ = writeln!(md, "# dm-eval: {}\n", run.bundle);
     let _ = writeln!(
         md,
-        "Model `{}`; camera `{}` (index {}); {} frames, train [{}, {}), test [{}, {}); renderer: {}; LPIPS: {}.\n",
+        "Model `{}`; camera `{}` (index {}); {} frames, train [{}, {}), test [{}, {}); rollout on {}; renderer: {}; LPIPS: {}.\n",
         run.model,
         run.camera_name,
         run.camera,
@@ -123,6 +125,7 @@ pub fn markdown(metrics: &Metrics, run: &RunInfo) -> String {
         split.train[1],
         split.test[0],
         split.test[1],
+        run.device,
         run.renderer,
         run.lpips
     );

@@ -43,6 +43,15 @@ impl Device {
     }
 }
 
+impl std::fmt::Display for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Device::Cpu => "cpu",
+            Device::Cuda => "cuda",
+        })
+    }
+}
+
 /// The process's GPU: opened, and its kernels compiled, once.
 pub(crate) fn shared_gpu() -> Result<Arc<CudaDevice>, ModelError> {
     static GPU: Mutex<Option<Arc<CudaDevice>>> = Mutex::new(None);

@@ -109,7 +109,7 @@ pub struct PlanOptions {
     /// Seed of MPPI's samples and of the observation noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Where the planning world runs, and the model when it is the plant (cuda: the first NVIDIA GPU; the residual network and a truth plant stay on the CPU).
+    /// Where the planning world runs, and the model when it is the plant (cuda: the first NVIDIA GPU, the residual network too; a truth plant stays on the CPU).
     #[arg(long, value_enum, default_value_t = Device::Cpu)]
     pub device: Device,
 }

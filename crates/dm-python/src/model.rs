@@ -166,8 +166,8 @@ impl PyModel {
     /// A simulation at the first frame with the hands at `hands` ((H, 3)
     /// metres). With `follow_splats` the fitted splats are moved every
     /// frame (needed for splat renders; costs a few ms per frame).
-    /// `device` is "cpu" or "cuda" (the first NVIDIA GPU; the residual
-    /// network stays on the CPU).
+    /// `device` is "cpu" or "cuda" (the MPM world and the residual
+    /// network on the first NVIDIA GPU).
     #[pyo3(signature = (hands, follow_splats = false, device = "cpu"))]
     fn simulation(
         &self,

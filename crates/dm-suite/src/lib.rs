@@ -521,6 +521,7 @@ fn run_one(
         camera: template.camera,
         frames: None,
         splats: None,
+        device: variant.options.device,
     };
     let evaluation = evaluate(&model, bundle, &options, lpips, &mut |stage, t| {
         progress(SuiteProgress::Detail(&format!("evaluating: {stage} {t}")))

@@ -5,79 +5,15 @@
 //! "device" with the CPU path. This checks what the kernels compute, not
 //! the GPU's concurrency (docs/gpu.md, "Checks").
 
-use dm_cuda::Precision;
-use dm_cuda::kernels::{ENTRY_POINTS, RESIDUAL_ENTRY_POINTS, source};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-
-/// The kernels of both precisions as one C++ unit, each in a namespace of
-/// its own, registered with the emulator by name.
-fn emulated_unit() -> String {
-    let mut unit = String::from("#include \"kernel_shim.h\"\n");
-    let precisions = [(Precision::F32, "float"), (Precision::F64, "double")];
-    for (precision, name) in precisions {
-        // C linkage would give both precisions' kernels one symbol.
-        let kernels = source(precision).replace("extern \"C\" __global__", "__global__");
-        unit.push_str(&format!(
-            "#undef REAL\nnamespace dm_{name} {{\nDM_EMU_BUILTINS\n{kernels}\n}}\n"
-        ));
-    }
-    unit.push_str("namespace {\nstruct Registration {\n    Registration() {\n");
-    for (_, name) in precisions {
-        for entry in ENTRY_POINTS.iter().chain(&RESIDUAL_ENTRY_POINTS) {
-            unit.push_str(&format!(
-                "        using T_{name}_{entry} = dm_emu::Thunk<&dm_{name}::{entry}>;\n        dm_emu_register(\"{name}\", \"{entry}\", &T_{name}_{entry}::run, T_{name}_{entry}::param_count, T_{name}_{entry}::param_sizes);\n"
-            ));
-        }
-    }
-    unit.push_str("    }\n} registration;\n}\n");
-    unit
-}
-
-/// Builds the emulator into `dir` with the first C++ compiler found.
-fn build_emulator(dir: &Path) -> PathBuf {
-    let sources = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../crates/dm-cuda/emulator");
-    std::fs::create_dir_all(dir).expect("emulator folder");
-    let unit = dir.join("kernels.cc");
-    std::fs::write(&unit, emulated_unit()).expect("writing the kernels' unit");
-    let library = dir.join("libcuda.so");
-    let compilers = std::env::var("CXX")
-        .map(|c| vec![c])
-        .unwrap_or_else(|_| vec!["c++".into(), "clang++".into()]);
-    for compiler in &compilers {
-        let Ok(output) = Command::new(compiler)
-            .args([
-                "-std=c++17",
-                "-O1",
-                "-fPIC",
-                "-shared",
-                "-Wl,-soname,libcuda.so",
-            ])
-            .arg("-I")
-            .arg(&sources)
-            .arg(sources.join("driver.cc"))
-            .arg(&unit)
-            .arg("-o")
-            .arg(&library)
-            .output()
-        else {
-            continue;
-        };
-        assert!(
-            output.status.success(),
-            "{compiler} could not build the CUDA emulator:\n{}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        return library;
-    }
-    panic!("no C++ compiler found (tried {compilers:?}); set CXX");
-}
 
 /// The emulator, built once for the tests of this file (they run at once).
 fn emulator() -> &'static Path {
     static LIBRARY: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     LIBRARY.get_or_init(|| {
-        build_emulator(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"))
+        dm_cuda::emulator::build(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("cuda-emulator"))
+            .unwrap_or_else(|e| panic!("{e}"))
     })
 }
 

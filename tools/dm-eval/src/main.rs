@@ -11,6 +11,7 @@ use dm_eval::lpips::{Lpips, MAKE_TARGET};
 use dm_eval::report::{RunInfo, write_report};
 use dm_eval::{EvalOptions, evaluate};
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use dm_suite::{Suite, SuiteProgress, run_suite, update_results_markdown};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
@@ -57,6 +58,10 @@ struct EvalArgs {
     /// Threads of the LPIPS network (0: all cores).
     #[arg(long, default_value_t = 0)]
     lpips_threads: usize,
+    /// Where the rollout's MPM world and residual network run (cuda: the
+    /// first NVIDIA GPU; the metrics stay on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu, conflicts_with = "suite")]
+    device: Device,
 }
 
 fn load_lpips(args: &EvalArgs) -> Result<(Option<Lpips>, String)> {
@@ -195,6 +200,7 @@ fn eval_main(args: &EvalArgs, model_dir: &Path, bundle_dir: &Path) -> Result<()>
         camera: args.camera,
         frames: Some(frames),
         splats,
+        device: args.device,
     };
     let renderer = dm_eval::renderer_name(&options).to_string();
     let evaluation = evaluate(
@@ -226,6 +232,7 @@ fn eval_main(args: &EvalArgs, model_dir: &Path, bundle_dir: &Path) -> Result<()>
         split: bundle.meta.split,
         lpips: lpips_note,
         renderer,
+        device: args.device,
         rollout_and_metrics_seconds: seconds,
         lpips_ms_per_frame: lpips
             .is_some()

@@ -199,3 +199,73 @@ fn eval_uses_the_fitted_splats_when_present() {
     let iou0 = metrics["frames"][0]["iou"].as_f64().expect("frame-0 IoU");
     assert!(iou0 > 0.5, "frame-0 IoU {iou0}");
 }
+
+/// Largest difference in Chamfer or Track, metres: f32 positions after a
+/// GPU rollout agree with the CPU's to round-off (~1e-7 m here), far below.
+const GEOMETRY_TOLERANCE_M: f64 = 1e-5;
+/// Largest difference in IoU, SSIM and LPIPS: a particle on a pixel's edge
+/// may cover it or not after round-off, moving these by about a pixel's share.
+const IMAGE_TOLERANCE: f64 = 0.02;
+/// Largest PSNR difference, dB, for the same reason.
+const PSNR_TOLERANCE_DB: f64 = 0.5;
+
+/// `--device cuda` rolls the model out on the GPU: under the driver's
+/// emulator (crates/dm-cuda/emulator) the metrics are the CPU run's to
+/// round-off and metrics.json records where the rollout ran.
+#[test]
+fn eval_on_the_gpu_matches_the_cpu_under_the_emulator() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (scene, model) = tiny_scene_and_model(dir.path());
+    let emulator =
+        dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
+    let args = ["--skip-lpips", "--lpips-dir", "none"];
+    let cpu_out = dir.path().join("cpu");
+    let result = run_eval(&model, &scene, &cpu_out, &args);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let gpu_out = dir.path().join("gpu");
+    let result = Command::new(env!("CARGO_BIN_EXE_dm-eval"))
+        .arg(&model)
+        .arg(&scene)
+        .arg("--out")
+        .arg(&gpu_out)
+        .args(args)
+        .args(["--device", "cuda"])
+        .env("LD_PRELOAD", &emulator)
+        .output()
+        .expect("dm-eval runs");
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let read = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).expect("metrics.json"))
+            .expect("json")
+    };
+    let (cpu, gpu) = (read(&cpu_out), read(&gpu_out));
+    assert_eq!(cpu["run"]["device"], "cpu");
+    assert_eq!(gpu["run"]["device"], "cuda");
+    for split in ["train", "test"] {
+        for key in ["chamfer", "track", "iou", "psnr", "ssim"] {
+            let value = |m: &serde_json::Value| {
+                m[split][key]
+                    .as_f64()
+                    .unwrap_or_else(|| panic!("{split}.{key} is not a number: {}", m[split]))
+            };
+            let tolerance = match key {
+                "chamfer" | "track" => GEOMETRY_TOLERANCE_M,
+                "psnr" => PSNR_TOLERANCE_DB,
+                _ => IMAGE_TOLERANCE,
+            };
+            let (a, b) = (value(&cpu), value(&gpu));
+            assert!(
+                (a - b).abs() <= tolerance,
+                "{split}.{key}: CPU {a}, emulated GPU {b} (tolerance {tolerance})"
+            );
+        }
+    }
+}

@@ -8,6 +8,7 @@ use dm_appearance::ViewChoice;
 use dm_appearance::clip::{ClipRequest, parse_frame_range, render_clip};
 use dm_bundle::Bundle;
 use dm_model::WorldModel;
+use dm_model::device::Device;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
@@ -40,6 +41,10 @@ struct RenderArgs {
     /// Write PNG frames only (no MP4).
     #[arg(long)]
     no_video: bool,
+    /// Where the rollout's MPM world and residual network run (cuda: the
+    /// first NVIDIA GPU; the splats are rendered on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    device: Device,
 }
 
 fn main() -> Result<()> {
@@ -75,6 +80,7 @@ fn main() -> Result<()> {
         background: [0.0; 3],
         video: !args.no_video,
         fps: args.fps,
+        device: args.device,
     };
     let bar = ProgressBar::new(1);
     bar.set_style(

@@ -35,8 +35,8 @@ struct SimArgs {
     /// Frames to roll out (default: the whole clip).
     #[arg(long)]
     frames: Option<usize>,
-    /// Where the MPM world runs (cuda: the first NVIDIA GPU; the residual
-    /// network stays on the CPU).
+    /// Where the MPM world and the residual network run (cuda: the first
+    /// NVIDIA GPU).
     #[arg(long, value_enum, default_value_t = Device::Cpu)]
     device: Device,
 }

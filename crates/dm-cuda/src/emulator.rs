@@ -1,0 +1,78 @@
+//! The CUDA driver emulated on the CPU, for tests without a GPU:
+//! `emulator/driver.cc` implements the driver calls the backend makes and
+//! runs the kernels, compiled as C++ from the same sources, one block at a
+//! time (docs/gpu.md, "Checks"). [`build`] compiles it into a `libcuda.so`
+//! that a process loads with `LD_PRELOAD` in place of the driver.
+
+use crate::Precision;
+use crate::kernels::{ENTRY_POINTS, RESIDUAL_ENTRY_POINTS, source};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The kernels of both precisions as one C++ unit, each in a namespace of
+/// its own, registered with the emulator by name.
+fn emulated_unit() -> String {
+    let mut unit = String::from("#include \"kernel_shim.h\"\n");
+    let precisions = [(Precision::F32, "float"), (Precision::F64, "double")];
+    for (precision, name) in precisions {
+        // C linkage would give both precisions' kernels one symbol.
+        let kernels = source(precision).replace("extern \"C\" __global__", "__global__");
+        unit.push_str(&format!(
+            "#undef REAL\nnamespace dm_{name} {{\nDM_EMU_BUILTINS\n{kernels}\n}}\n"
+        ));
+    }
+    unit.push_str("namespace {\nstruct Registration {\n    Registration() {\n");
+    for (_, name) in precisions {
+        for entry in ENTRY_POINTS.iter().chain(&RESIDUAL_ENTRY_POINTS) {
+            unit.push_str(&format!(
+                "        using T_{name}_{entry} = dm_emu::Thunk<&dm_{name}::{entry}>;\n        dm_emu_register(\"{name}\", \"{entry}\", &T_{name}_{entry}::run, T_{name}_{entry}::param_count, T_{name}_{entry}::param_sizes);\n"
+            ));
+        }
+    }
+    unit.push_str("    }\n} registration;\n}\n");
+    unit
+}
+
+/// Builds the emulator into `dir` (created) with `$CXX`, else the first of
+/// `c++` and `clang++` found, and returns the library's path.
+pub fn build(dir: &Path) -> Result<PathBuf, String> {
+    let sources = Path::new(env!("CARGO_MANIFEST_DIR")).join("emulator");
+    std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+    let unit = dir.join("kernels.cc");
+    std::fs::write(&unit, emulated_unit())
+        .map_err(|e| format!("writing {}: {e}", unit.display()))?;
+    let library = dir.join("libcuda.so");
+    let compilers = std::env::var("CXX")
+        .map(|c| vec![c])
+        .unwrap_or_else(|_| vec!["c++".into(), "clang++".into()]);
+    for compiler in &compilers {
+        let Ok(output) = Command::new(compiler)
+            .args([
+                "-std=c++17",
+                "-O1",
+                "-fPIC",
+                "-shared",
+                "-Wl,-soname,libcuda.so",
+            ])
+            .arg("-I")
+            .arg(&sources)
+            .arg(sources.join("driver.cc"))
+            .arg(&unit)
+            .arg("-o")
+            .arg(&library)
+            .output()
+        else {
+            continue;
+        };
+        if !output.status.success() {
+            return Err(format!(
+                "{compiler} could not build the CUDA emulator:\n{}",
+                String::from_utf8_lossy(&output.stderr)
+            ));
+        }
+        return Ok(library);
+    }
+    Err(format!(
+        "no C++ compiler found (tried {compilers:?}); set CXX"
+    ))
+}

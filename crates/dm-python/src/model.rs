@@ -177,15 +177,7 @@ impl PyModel {
         device: &str,
     ) -> PyResult<PySimulation> {
         guarded("Model.simulation", || {
-            let device = match device {
-                "cpu" => Device::Cpu,
-                "cuda" => Device::Cuda,
-                other => {
-                    return Err(ModelError::new_err(format!(
-                        "device: expected \"cpu\" or \"cuda\", got {other:?}"
-                    )));
-                }
-            };
+            let device = parse_device(device)?;
             let hands = points_from_array(&hands, "hands")?;
             let follower = match (&self.splats, follow_splats) {
                 (Some(g), true) => Some(
@@ -221,20 +213,23 @@ impl PyModel {
     }
 
     /// Open-loop rollout driven by the bundle's hand track, as dm-sim runs
-    /// it: positions of every frame, (T, N, 3) float32.
-    #[pyo3(signature = (bundle, frames = None))]
+    /// it: positions of every frame, (T, N, 3) float32. `device` as in
+    /// `simulation`.
+    #[pyo3(signature = (bundle, frames = None, device = "cpu"))]
     fn rollout<'py>(
         &self,
         py: Python<'py>,
         bundle: &PyBundle,
         frames: Option<usize>,
+        device: &str,
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
         guarded("Model.rollout", || {
+            let device = parse_device(device)?;
             let frames = frames.unwrap_or(bundle.inner.frame_count());
             let model = &self.model;
             let b = &bundle.inner;
             let rollout = py
-                .detach(|| model.rollout(b, frames, &mut |_| {}))
+                .detach(|| model.rollout_on(b, frames, device, &mut |_| {}))
                 .map_err(model_error)?;
             frames_to_array(py, &rollout)
         })
@@ -289,6 +284,17 @@ impl PyModel {
             self.model.residual.is_some(),
             self.splats.is_some()
         )
+    }
+}
+
+/// `"cpu"` or `"cuda"` as a device, else the error naming the argument.
+fn parse_device(device: &str) -> PyResult<Device> {
+    match device {
+        "cpu" => Ok(Device::Cpu),
+        "cuda" => Ok(Device::Cuda),
+        other => Err(ModelError::new_err(format!(
+            "device: expected \"cpu\" or \"cuda\", got {other:?}"
+        ))),
     }
 }
 

@@ -198,6 +198,8 @@ def test_errors_name_file_and_field(tiny, tmp_path):
     model = dm.load_model(tiny["model"])
     with pytest.raises(dm.ModelError, match="device"):
         model.simulation(bundle.hand_anchors(0), device="tpu")
+    with pytest.raises(dm.ModelError, match="device"):
+        model.rollout(bundle, frames=2, device="tpu")
 
 
 def test_the_gil_is_released_while_stepping(tiny):

@@ -32,6 +32,7 @@ typedef void* CUstream;
 typedef void* CUevent;
 typedef void* CUmodule;
 typedef void* CUfunction;
+typedef void* CUmemoryPool;
 
 namespace {
 
@@ -427,7 +428,8 @@ EXPORT CUresult cuDeviceGetAttribute(int* value, int attribute, CUdevice) {
         case 10: *value = 32; break;  // warp size
         case 1: *value = 1024; break; // threads per block
         case 16: *value = 1; break;   // multiprocessors
-        default: *value = 0;          // memory pools and the rest: absent
+        case 115: *value = 1; break;  // memory pools: stream-ordered allocation, as on the GPUs targeted
+        default: *value = 0;          // the rest: absent
     }
     return SUCCESS;
 }
@@ -502,6 +504,16 @@ EXPORT CUresult cuMemAlloc_v2(CUdeviceptr* pointer, size_t bytes) { return alloc
 EXPORT CUresult cuMemAllocAsync(CUdeviceptr* pointer, size_t bytes, CUstream stream) {
     if (capturing(stream)) return refuse_in_capture(stream);
     return allocate(pointer, bytes);
+}
+// The pool's memory is plain host memory; its attributes are counted.
+static int the_pool;
+EXPORT CUresult cuDeviceGetDefaultMemPool(CUmemoryPool* pool, CUdevice) {
+    *pool = (CUmemoryPool)&the_pool;
+    return SUCCESS;
+}
+EXPORT CUresult cuMemPoolSetAttribute(CUmemoryPool, int, void*) {
+    counts().call("pool_attribute", 0);
+    return SUCCESS;
 }
 EXPORT CUresult cuMemFree_v2(CUdeviceptr pointer) { std::free((void*)pointer); return SUCCESS; }
 EXPORT CUresult cuMemFreeAsync(CUdeviceptr pointer, CUstream stream) {

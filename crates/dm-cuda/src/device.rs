@@ -45,6 +45,28 @@ pub(crate) struct Kernels {
     pub zero_coupled: CudaFunction,
 }
 
+/// Has the device's default memory pool keep what is freed for the next
+/// allocation: by default the pool hands its unused memory back to the
+/// driver at every synchronisation, and each frame of a fit synchronises
+/// (the divergence check) and then allocates its tape anew, which would
+/// map fresh memory every frame. The process keeps its peak use until it
+/// exits.
+fn keep_freed_memory(context: &CudaContext) -> Result<(), CudaError> {
+    use cudarc::driver::{result::mem_pool, sys};
+    let mut threshold = u64::MAX;
+    // SAFETY: the device is the context's; the release threshold is a u64,
+    // and the pointer lives for the call.
+    unsafe {
+        let pool = cudarc::driver::result::device::get_default_mem_pool(context.cu_device())?;
+        mem_pool::set_attribute(
+            pool,
+            sys::CUmemPool_attribute::CU_MEMPOOL_ATTR_RELEASE_THRESHOLD,
+            (&raw mut threshold).cast(),
+        )?;
+    }
+    Ok(())
+}
+
 impl CudaDevice {
     /// Opens GPU `ordinal`: fails with a clear error where no driver, no
     /// device or no NVRTC is found.
@@ -66,6 +88,9 @@ impl CudaDevice {
         // network's weights, is read by other streams only after the
         // stream that wrote them has been waited for (`CudaResidual`).
         unsafe { context.disable_event_tracking() };
+        if context.has_async_alloc() {
+            keep_freed_memory(&context)?;
+        }
         let (major, minor) = context.compute_capability()?;
         let stream = context.new_stream()?;
         let graphs = !matches!(std::env::var(GRAPHS_VARIABLE).as_deref(), Ok("off" | "0"));

@@ -474,8 +474,22 @@ impl<T: DeviceReal> CudaWorld<T> {
         anchors_to: &[[f64; 3]],
         active: &[bool],
     ) -> Result<(), CudaError> {
-        self.advance_frame(anchors_from, anchors_to, active, None)
+        self.advance_frame(anchors_from, anchors_to, active, FrameRun::Whole)
             .map(|_| ())
+    }
+
+    /// Like [`CudaWorld::step_frame`], returning the state entering the
+    /// frame's substep `at` (as [`World::step_frame_keeping`]).
+    pub fn step_frame_keeping(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        at: usize,
+    ) -> Result<Particles<T>, CudaError> {
+        let (_, kept) =
+            self.advance_frame(anchors_from, anchors_to, active, FrameRun::Keeping(at))?;
+        kept.ok_or_else(|| CudaError::Unsupported("a frame kept no state".into()))
     }
 
     /// Like [`CudaWorld::step_frame`], recording on the device what the
@@ -488,7 +502,26 @@ impl<T: DeviceReal> CudaWorld<T> {
         active: &[bool],
         window: usize,
     ) -> Result<DeviceFrameTape<T>, CudaError> {
-        self.advance_frame(anchors_from, anchors_to, active, Some(window))?
+        let run = FrameRun::Taped { window, first: 0 };
+        self.advance_frame(anchors_from, anchors_to, active, run)?
+            .0
+            .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
+    }
+
+    /// The last `window` substeps of a frame, taped, from the state
+    /// entering them; grasps nothing (as [`World::step_frame_rest_taped`]).
+    pub fn step_frame_rest_taped(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        window: usize,
+    ) -> Result<DeviceFrameTape<T>, CudaError> {
+        let steps = self.host.config().substeps_per_frame;
+        let first = steps - window.min(steps);
+        let run = FrameRun::Taped { window, first };
+        let no_grasp = vec![false; anchors_from.len()];
+        self.advance_frame(anchors_from, anchors_to, &no_grasp, run)?
+            .0
             .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
     }
 
@@ -497,8 +530,8 @@ impl<T: DeviceReal> CudaWorld<T> {
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
         active: &[bool],
-        window: Option<usize>,
-    ) -> Result<Option<DeviceFrameTape<T>>, CudaError> {
+        run: FrameRun,
+    ) -> Result<(Option<DeviceFrameTape<T>>, Option<Particles<T>>), CudaError> {
         let grasp_positions = if self.host.actuators().grasp_pending(active) {
             let x = self.stream().clone_dtoh(&self.particles.x)?;
             Some(unflat::<T, 3, 1>(&x))
@@ -536,26 +569,36 @@ impl<T: DeviceReal> CudaWorld<T> {
         let anchors = anchors_from.len();
         let anchor_stride = coupled.then_some(anchors * 3);
         let stream = self.device.stream().clone();
-        // The taped substeps copy the state before each: launched one by one.
-        let untaped = steps - window.map_or(0, |w| w.min(steps));
-        let first = if self.replay_substeps(&k, 0..untaped, anchor_stride)? {
-            untaped
-        } else {
-            0
+        // Untaped substeps run as graphs, in two stretches around the
+        // state kept; the taped ones copy the state before each and are
+        // launched one by one.
+        let (first, taped_from, keep_at) = match run {
+            FrameRun::Whole => (0, steps, None),
+            FrameRun::Keeping(at) => (0, steps, Some(at.min(steps))),
+            FrameRun::Taped { window, first } => (first, steps - window.min(steps), None),
         };
-        let mut states = Vec::new();
-        for s in first..steps {
-            if window.is_some_and(|w| s + w >= steps) {
-                states.push(self.particles.duplicate(&stream)?);
+        let split = keep_at.unwrap_or(taped_from);
+        self.run_untaped(&k, first..split, anchor_stride)?;
+        let kept = match keep_at {
+            Some(_) => {
+                self.host_stale = true;
+                Some(self.state()?)
             }
+            None => None,
+        };
+        self.run_untaped(&k, split..taped_from, anchor_stride)?;
+        let taped = matches!(run, FrameRun::Taped { .. });
+        let mut states = Vec::new();
+        for s in taped_from..steps {
+            states.push(self.particles.duplicate(&stream)?);
             self.launch_substep(&k, s, anchor_stride.map(|a| s * a))?;
         }
         self.host_stale = true;
         self.check_failure()?;
         self.host.count_frame();
-        let Some(_) = window else {
-            return Ok(None);
-        };
+        if !taped {
+            return Ok((None, kept));
+        }
         let anchors_taped = if coupled {
             Some((
                 stream.clone_dtod(&self.couplings.anchor_x)?,
@@ -564,13 +607,31 @@ impl<T: DeviceReal> CudaWorld<T> {
         } else {
             None
         };
-        Ok(Some(DeviceFrameTape {
+        let tape = DeviceFrameTape {
             states,
             anchors: anchors_taped,
             anchor_count: anchors,
             substeps: steps,
             frame_dt: self.host.config().dt * steps as f64,
-        }))
+        };
+        Ok((Some(tape), kept))
+    }
+
+    /// Runs `substeps` untaped: as one graph launch where graphs are on,
+    /// else launched one by one.
+    fn run_untaped(
+        &mut self,
+        k: &KernelConsts<T>,
+        substeps: Range<usize>,
+        anchor_stride: Option<usize>,
+    ) -> Result<(), CudaError> {
+        if self.replay_substeps(k, substeps.clone(), anchor_stride)? {
+            return Ok(());
+        }
+        for s in substeps {
+            self.launch_substep(k, s, anchor_stride.map(|a| s * a))?;
+        }
+        Ok(())
     }
 
     /// Advances one frame with no anchors.
@@ -734,6 +795,19 @@ impl<T: DeviceReal> CudaWorld<T> {
         }
         .into())
     }
+}
+
+/// What [`CudaWorld::advance_frame`] does besides stepping the frame.
+#[derive(Clone, Copy, Debug)]
+enum FrameRun {
+    Whole,
+    /// Keep the state entering this substep.
+    Keeping(usize),
+    /// Tape the last `window` substeps, running the substeps from `first` on.
+    Taped {
+        window: usize,
+        first: usize,
+    },
 }
 
 /// Copies `values` into `buffer`, reallocating it where the length

@@ -309,7 +309,8 @@ pub fn loss_and_gradient_on(
     // Σ_p |Δv_p|² / n per frame, averaged over frames like L_dyn.
     let regulariser = RESIDUAL_REGULARISER / (n * steps) as f64;
 
-    // Forward: checkpoints at frame starts, loss gradients at frame ends.
+    // Forward: the state entering each frame's taped window (the backward
+    // pass runs only that window again), loss gradients at frame ends.
     let mut checkpoints = Vec::with_capacity(steps);
     let mut starts: Vec<FrameStart> = Vec::with_capacity(steps);
     let mut corrections = Vec::with_capacity(steps);
@@ -321,13 +322,14 @@ pub fn loss_and_gradient_on(
     // The extra term's inputs: every frame's positions, taken together
     // after the rollout (its views are independent of each other).
     let mut extra_positions = Vec::new();
+    let substeps = world.config().substeps_per_frame;
+    let window_start = substeps - window.min(substeps);
     for t in 0..steps {
-        checkpoints.push(world.state()?);
         if network.is_some() {
             starts.push(frame_start(world.host()?));
         }
         let (from, to, grasp) = model.hand_step(bundle, t);
-        world.step_frame(&from, &to, &grasp)?;
+        checkpoints.push(world.step_frame_keeping(&from, &to, &grasp, window_start)?);
         let mut regularised = 0.0;
         if let Some(network) = &network {
             let (dv, _) = world.edit(|w| apply_residual(w, network, &starts, t))??;
@@ -380,8 +382,8 @@ pub fn loss_and_gradient_on(
             *c += Vec3::new(g[0] as f32, g[1] as f32, g[2] as f32);
         }
         world.set_state(&checkpoints[t])?;
-        let (from, to, grasp) = model.hand_step(bundle, t);
-        let tape = world.step_frame_taped(&from, &to, &grasp, window)?;
+        let (from, to, _) = model.hand_step(bundle, t);
+        let tape = world.step_frame_rest_taped(&from, &to, window)?;
         let mut x_start_grad = None;
         if let (Some(network), Some(grad_residual)) = (&network, grad_residual.as_mut()) {
             let inputs = frame_inputs(world.host()?, &starts, t);

@@ -153,6 +153,37 @@ impl<T: DeviceReal> DeviceWorld<T> {
         }
     }
 
+    /// As [`World::step_frame_keeping`].
+    pub fn step_frame_keeping(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        active: &[bool],
+        at: usize,
+    ) -> Result<Particles<T>, ModelError> {
+        match self {
+            DeviceWorld::Cpu(world) => Ok(world.step_frame_keeping(from, to, active, at)?),
+            DeviceWorld::Cuda(world) => Ok(world.step_frame_keeping(from, to, active, at)?),
+        }
+    }
+
+    /// As [`World::step_frame_rest_taped`].
+    pub fn step_frame_rest_taped(
+        &mut self,
+        from: &[[f64; 3]],
+        to: &[[f64; 3]],
+        window: usize,
+    ) -> Result<DeviceTape<T>, ModelError> {
+        match self {
+            DeviceWorld::Cpu(world) => Ok(DeviceTape::Cpu(
+                world.step_frame_rest_taped(from, to, window)?,
+            )),
+            DeviceWorld::Cuda(world) => Ok(DeviceTape::Cuda(
+                world.step_frame_rest_taped(from, to, window)?,
+            )),
+        }
+    }
+
     /// As [`World::backward_frame`]; `tape` must come from this world.
     pub fn backward_frame(
         &mut self,

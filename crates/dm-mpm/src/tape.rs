@@ -320,7 +320,7 @@ mod tests {
             let mut tape = FrameTape::new(4, world.consts.res);
             tape.store_grids = store_grids;
             world
-                .advance_frame(&[], &[], &[], Some(&mut tape))
+                .advance_frame(&[], &[], &[], crate::world::FrameRun::Taped(&mut tape, 0))
                 .expect("frame");
             assert_eq!(tape.caches.len(), if store_grids { 4 } else { 0 });
             let n = world.particle_count();

@@ -417,7 +417,23 @@ impl<T: Real> World<T> {
         anchors_to: &[[f64; 3]],
         active: &[bool],
     ) -> Result<(), SimError> {
-        self.advance_frame(anchors_from, anchors_to, active, None)
+        self.advance_frame(anchors_from, anchors_to, active, FrameRun::Whole)
+            .map(|_| ())
+    }
+
+    /// Like [`World::step_frame`], returning the state (as
+    /// [`World::state`]) entering the frame's substep `at` (the state after
+    /// the frame when `at` is the frame's substep count or more): where
+    /// [`World::step_frame_rest_taped`] picks the frame up again.
+    pub fn step_frame_keeping(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        at: usize,
+    ) -> Result<Particles<T>, SimError> {
+        let kept = self.advance_frame(anchors_from, anchors_to, active, FrameRun::Keeping(at))?;
+        Ok(kept.unwrap_or_else(|| self.state()))
     }
 
     /// Like [`World::step_frame`], recording what the backward pass needs
@@ -431,7 +447,34 @@ impl<T: Real> World<T> {
         window: usize,
     ) -> Result<FrameTape<T>, SimError> {
         let mut tape = FrameTape::new(window.min(self.config.substeps_per_frame), self.consts.res);
-        self.advance_frame(anchors_from, anchors_to, active, Some(&mut tape))?;
+        self.advance_frame(
+            anchors_from,
+            anchors_to,
+            active,
+            FrameRun::Taped(&mut tape, 0),
+        )?;
+        Ok(tape)
+    }
+
+    /// The last `window` substeps of a frame, taped, from the state entering
+    /// them ([`World::step_frame_keeping`]'s at `substeps_per_frame -
+    /// window`, restored with [`World::set_state`]): the tape and the state
+    /// after are [`World::step_frame_taped`]'s from the frame's start,
+    /// without running the frame's first substeps again. It grasps nothing:
+    /// the frame's grasps are the ones its first run made (a grasp is
+    /// never undone).
+    pub fn step_frame_rest_taped(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        window: usize,
+    ) -> Result<FrameTape<T>, SimError> {
+        let steps = self.config.substeps_per_frame;
+        let mut tape = FrameTape::new(window.min(steps), self.consts.res);
+        let first = steps - tape.window;
+        let no_grasp = vec![false; anchors_from.len()];
+        let run = FrameRun::Taped(&mut tape, first);
+        self.advance_frame(anchors_from, anchors_to, &no_grasp, run)?;
         Ok(tape)
     }
 
@@ -440,9 +483,9 @@ impl<T: Real> World<T> {
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
         active: &[bool],
-        tape: Option<&mut FrameTape<T>>,
-    ) -> Result<(), SimError> {
-        on_worker(|| self.advance_frame_here(anchors_from, anchors_to, active, tape))
+        run: FrameRun<'_, T>,
+    ) -> Result<Option<Particles<T>>, SimError> {
+        on_worker(|| self.advance_frame_here(anchors_from, anchors_to, active, run))
     }
 
     fn advance_frame_here(
@@ -450,13 +493,22 @@ impl<T: Real> World<T> {
         anchors_from: &[[f64; 3]],
         anchors_to: &[[f64; 3]],
         active: &[bool],
-        mut tape: Option<&mut FrameTape<T>>,
-    ) -> Result<(), SimError> {
+        run: FrameRun<'_, T>,
+    ) -> Result<Option<Particles<T>>, SimError> {
         let path = self.begin_frame(anchors_from, anchors_to, active, None)?;
         self.anchor_v = path.velocity.clone();
         let steps = self.config.substeps_per_frame;
-        self.substep_in_frame = 0;
-        for s in 0..steps {
+        let (mut tape, first, keep_at) = match run {
+            FrameRun::Whole => (None, 0, None),
+            FrameRun::Keeping(at) => (None, 0, Some(at)),
+            FrameRun::Taped(tape, first) => (Some(tape), first, None),
+        };
+        let mut kept = None;
+        self.substep_in_frame = first;
+        for s in first..steps {
+            if keep_at == Some(s) {
+                kept = Some(self.state());
+            }
             self.anchor_x = path.at_substep(s);
             // A taped substep also keeps its post-P2G grid and bucketing
             // for the backward pass when the tape's memory budget allows.
@@ -475,7 +527,7 @@ impl<T: Real> World<T> {
             }
         }
         self.frame += 1;
-        Ok(())
+        Ok(kept)
     }
 
     /// Checks a frame's anchors, lets active anchors grasp (at
@@ -606,4 +658,13 @@ pub fn on_worker<R: Send>(op: impl FnOnce() -> R + Send) -> R {
     } else {
         rayon::scope(|_| op())
     }
+}
+
+/// What [`World::advance_frame`] does besides stepping the frame.
+pub(crate) enum FrameRun<'a, T: Real> {
+    Whole,
+    /// Keep the state entering this substep.
+    Keeping(usize),
+    /// Tape the tape's window, running the substeps from this one on.
+    Taped(&'a mut FrameTape<T>, usize),
 }

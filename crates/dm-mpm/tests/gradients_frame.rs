@@ -598,3 +598,47 @@ fn frame_adjoint_of_the_body_force_matches_finite_differences() {
         }
     }
 }
+
+/// A frame's last substeps taped from the state kept at their start
+/// (`step_frame_keeping`, then `step_frame_rest_taped`, as a fit's
+/// backward pass runs them) are the whole frame taped: the same state
+/// after it and the same gradients, bit for bit, for a truncated window,
+/// one as long as the frame, and one longer.
+#[test]
+fn the_rest_of_a_frame_taped_from_its_kept_state_is_the_whole_frame_taped() {
+    let to = anchors_to();
+    let substeps = world().config().substeps_per_frame;
+    for window in [3, substeps, usize::MAX] {
+        let mut whole = world();
+        let tape = whole
+            .step_frame_taped(&FROM, &to, &[true, true], window)
+            .expect("taped frame");
+        let after = whole.state();
+
+        let mut rest = world();
+        let kept = rest
+            .step_frame_keeping(&FROM, &to, &[true, true], substeps - window.min(substeps))
+            .expect("frame keeping a state");
+        assert_eq!(
+            rest.state(),
+            after,
+            "window {window}: keeping changed the frame"
+        );
+        rest.set_state(&kept).expect("state");
+        let rest_tape = rest
+            .step_frame_rest_taped(&FROM, &to, window)
+            .expect("rest of the frame");
+        assert_eq!(
+            rest.state(),
+            after,
+            "window {window}: the rest ends elsewhere"
+        );
+        assert_eq!(rest_tape.len(), tape.len());
+
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let probe = position_velocity_probe(&mut rng, whole.particle_count());
+        let grads = whole.backward_frame(&tape, &probe).expect("backward");
+        let rest_grads = rest.backward_frame(&rest_tape, &probe).expect("backward");
+        assert_eq!(rest_grads, grads, "window {window}: gradients differ");
+    }
+}

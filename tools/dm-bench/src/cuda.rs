@@ -441,7 +441,9 @@ fn gradient_parity_run<T: DeviceReal>(
 /// first half replayed as a CUDA graph where graphs are on). In f32 the
 /// two devices' untaped halves part by round-off, which a plastic kink
 /// turns into a different adjoint: only f64 isolates the adjoint there.
-/// Prints each group's agreement and returns whether all pass.
+/// Then, in both precisions, the next frame's last half taped again from
+/// the state kept at its start (the fit's backward pass). Prints each
+/// group's agreement and returns whether all pass.
 fn frame_gradient_parity_run<T: DeviceReal>(
     device: &Arc<CudaDevice>,
     scene: ParityScene,
@@ -463,6 +465,7 @@ fn frame_gradient_parity_run<T: DeviceReal>(
     if T::PRECISION == dm_cuda::Precision::F64 {
         windows.push((2, substeps.div_ceil(2)));
     }
+    let windows_run = windows.len();
     for (frame, window) in windows {
         gpu.set_state(&cpu.state())?;
         let (from, to, active) = parity_anchors(scene, frame);
@@ -476,6 +479,41 @@ fn frame_gradient_parity_run<T: DeviceReal>(
         );
         passed &= report_agreement(&label, frame_groups(&want), frame_groups(&got));
     }
+    // As a fit's backward pass: the frame kept at its window's start, then
+    // only the window taped again, on both devices from the CPU's kept state.
+    let window = substeps.div_ceil(2);
+    let (from, to, active) = parity_anchors(scene, windows_run + 1);
+    let start = cpu.state();
+    let kept = cpu.step_frame_keeping(&from, &to, &active, substeps - window)?;
+    gpu.set_state(&start)?;
+    let gpu_kept = gpu.step_frame_keeping(&from, &to, &active, substeps - window)?;
+    let domain = cpu.config().domain_size;
+    let dx = kept
+        .x
+        .iter()
+        .zip(&gpu_kept.x)
+        .map(|(a, b)| (a - b).norm().to_f64())
+        .fold(0.0, f64::max);
+    let kept_ok = dx / domain <= POSITION_PARITY;
+    passed &= kept_ok;
+    println!(
+        "kept state parity {scene:?} {}, substep {} of {substeps}: max |dx|/domain {:.3e}{}",
+        T::PRECISION.c_type(),
+        substeps - window,
+        dx / domain,
+        if kept_ok { " — pass" } else { " — FAIL" }
+    );
+    cpu.set_state(&kept)?;
+    gpu.set_state(&kept)?;
+    let cpu_tape = cpu.step_frame_rest_taped(&from, &to, window)?;
+    let gpu_tape = gpu.step_frame_rest_taped(&from, &to, window)?;
+    let want = cpu.backward_frame(&cpu_tape, &upstream)?;
+    let got = gpu.backward_frame(&gpu_tape, &upstream)?;
+    let label = format!(
+        "frame gradient parity {scene:?} {}, the last {window} of {substeps} substeps from the kept state",
+        T::PRECISION.c_type()
+    );
+    passed &= report_agreement(&label, frame_groups(&want), frame_groups(&got));
     Ok(passed)
 }
 

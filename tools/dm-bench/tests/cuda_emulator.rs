@@ -81,6 +81,14 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
         !stderr.contains("graph capture failed"),
         "a graph capture failed:\n{stderr}"
     );
+    // The fit's backward pass: a frame kept at its window, the window taped again.
+    for precision in ["double", "float"] {
+        assert!(
+            stdout.contains(&format!("kept state parity Hands {precision}"))
+                && stdout.contains("substeps from the kept state"),
+            "no kept-state parity in {precision}:\n{stdout}"
+        );
+    }
     for kind in ["Pgnd", "Mlp"] {
         assert!(
             stdout.contains(&format!(

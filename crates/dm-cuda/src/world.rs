@@ -487,9 +487,9 @@ impl<T: DeviceReal> CudaWorld<T> {
         active: &[bool],
         at: usize,
     ) -> Result<Particles<T>, CudaError> {
-        let (_, kept) =
-            self.advance_frame(anchors_from, anchors_to, active, FrameRun::Keeping(at))?;
-        kept.ok_or_else(|| CudaError::Unsupported("a frame kept no state".into()))
+        self.advance_frame(anchors_from, anchors_to, active, FrameRun::Keeping(at))?
+            .kept
+            .ok_or_else(|| CudaError::Unsupported("a frame kept no state".into()))
     }
 
     /// Like [`CudaWorld::step_frame`], recording on the device what the
@@ -504,7 +504,7 @@ impl<T: DeviceReal> CudaWorld<T> {
     ) -> Result<DeviceFrameTape<T>, CudaError> {
         let run = FrameRun::Taped { window, first: 0 };
         self.advance_frame(anchors_from, anchors_to, active, run)?
-            .0
+            .tape
             .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
     }
 
@@ -521,7 +521,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         let run = FrameRun::Taped { window, first };
         let no_grasp = vec![false; anchors_from.len()];
         self.advance_frame(anchors_from, anchors_to, &no_grasp, run)?
-            .0
+            .tape
             .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
     }
 
@@ -531,7 +531,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         anchors_to: &[[f64; 3]],
         active: &[bool],
         run: FrameRun,
-    ) -> Result<(Option<DeviceFrameTape<T>>, Option<Particles<T>>), CudaError> {
+    ) -> Result<FrameOutcome<T>, CudaError> {
         let grasp_positions = if self.host.actuators().grasp_pending(active) {
             let x = self.stream().clone_dtoh(&self.particles.x)?;
             Some(unflat::<T, 3, 1>(&x))
@@ -597,7 +597,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         self.check_failure()?;
         self.host.count_frame();
         if !taped {
-            return Ok((None, kept));
+            return Ok(FrameOutcome { tape: None, kept });
         }
         let anchors_taped = if coupled {
             Some((
@@ -614,7 +614,10 @@ impl<T: DeviceReal> CudaWorld<T> {
             substeps: steps,
             frame_dt: self.host.config().dt * steps as f64,
         };
-        Ok((Some(tape), kept))
+        Ok(FrameOutcome {
+            tape: Some(tape),
+            kept,
+        })
     }
 
     /// Runs `substeps` untaped: as one graph launch where graphs are on,
@@ -795,6 +798,12 @@ impl<T: DeviceReal> CudaWorld<T> {
         }
         .into())
     }
+}
+
+/// What [`CudaWorld::advance_frame`] recorded besides the frame.
+struct FrameOutcome<T> {
+    tape: Option<DeviceFrameTape<T>>,
+    kept: Option<Particles<T>>,
 }
 
 /// What [`CudaWorld::advance_frame`] does besides stepping the frame.

@@ -11,8 +11,9 @@
 #    residual network (forward and VJP, 8 000 particles) on both; the
 #    splat renderer on the host's cores;
 # 3. with a scene and a fitted model: dm-sim's rollout on the CPU and on
-#    the GPU (times and largest position difference), and the playground's
-#    frame with all the model's particles at its substeps on both;
+#    the GPU (times and largest position difference), the playground's
+#    frame with all the model's particles at its substeps on both, and
+#    dm-eval's metrics of the rollout on both;
 # 4. with FIT_SCENE set (the demo's scene): the demo's fit on the GPU and
 #    on the CPU, their times and results; then, with the scene's truth file
 #    beside it (FIT_SCENE.truth.json), a 120-frame plan (dm-plan's
@@ -88,6 +89,11 @@ if part sim && [ -n "$SCENE" ] && [ -n "$MODEL" ]; then
     [ -n "$CPU_DEVICE" ] && python3 -c "import numpy as np,sys; a=np.load(sys.argv[1]); b=np.load(sys.argv[2]); d=np.abs(a-b).max(axis=(1,2)); print('rollout cpu vs cuda: largest position difference %.3e m (frame 1: %.3e m, last: %.3e m)' % (d.max(), d[1], d[-1]))" "$OUT_DIR/sim-cpu/rollout.npy" "$OUT_DIR/sim-cuda/rollout.npy"
     for device in cuda $CPU_DEVICE; do
         run "$BIN/dm-bench" play --model "$MODEL" --exact --device "$device" --frames 40
+    done
+    # The metrics of the same rollout (LPIPS left out: its network is not carried).
+    for device in $CPU_DEVICE cuda; do
+        run "$BIN/dm-eval" "$MODEL" "$SCENE" --out "$OUT_DIR/eval-$device" --skip-lpips --lpips-dir "$OUT_DIR/no-lpips" --device "$device"
+        python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print('dm-eval $device: %.2f s, held-out track %.2f mm, chamfer %.2f mm' % (m['run']['rollout_and_metrics_seconds'], 1e3*m['test']['track'], 1e3*m['test']['chamfer']))" "$OUT_DIR/eval-$device/metrics.json"
     done
 fi
 if [ -n "${FIT_SCENE:-}" ]; then

@@ -502,10 +502,7 @@ impl<T: DeviceReal> CudaWorld<T> {
         active: &[bool],
         window: usize,
     ) -> Result<DeviceFrameTape<T>, CudaError> {
-        let run = FrameRun::Taped { window, first: 0 };
-        self.advance_frame(anchors_from, anchors_to, active, run)?
-            .tape
-            .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
+        self.taped_frame(anchors_from, anchors_to, active, window, 0)
     }
 
     /// The last `window` substeps of a frame, taped, from the state
@@ -517,10 +514,28 @@ impl<T: DeviceReal> CudaWorld<T> {
         window: usize,
     ) -> Result<DeviceFrameTape<T>, CudaError> {
         let steps = self.host.config().substeps_per_frame;
-        let first = steps - window.min(steps);
-        let run = FrameRun::Taped { window, first };
         let no_grasp = vec![false; anchors_from.len()];
-        self.advance_frame(anchors_from, anchors_to, &no_grasp, run)?
+        self.taped_frame(
+            anchors_from,
+            anchors_to,
+            &no_grasp,
+            window,
+            steps - window.min(steps),
+        )
+    }
+
+    /// A frame whose last `window` substeps are taped, run from substep
+    /// `first` on.
+    fn taped_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        window: usize,
+        first: usize,
+    ) -> Result<DeviceFrameTape<T>, CudaError> {
+        let run = FrameRun::Taped { window, first };
+        self.advance_frame(anchors_from, anchors_to, active, run)?
             .tape
             .ok_or_else(|| CudaError::Unsupported("a taped frame recorded nothing".into()))
     }

@@ -446,14 +446,7 @@ impl<T: Real> World<T> {
         active: &[bool],
         window: usize,
     ) -> Result<FrameTape<T>, SimError> {
-        let mut tape = FrameTape::new(window.min(self.config.substeps_per_frame), self.consts.res);
-        self.advance_frame(
-            anchors_from,
-            anchors_to,
-            active,
-            FrameRun::Taped(&mut tape, 0),
-        )?;
-        Ok(tape)
+        self.taped_frame(anchors_from, anchors_to, active, window, false)
     }
 
     /// The last `window` substeps of a frame, taped, from the state entering
@@ -469,12 +462,25 @@ impl<T: Real> World<T> {
         anchors_to: &[[f64; 3]],
         window: usize,
     ) -> Result<FrameTape<T>, SimError> {
+        let no_grasp = vec![false; anchors_from.len()];
+        self.taped_frame(anchors_from, anchors_to, &no_grasp, window, true)
+    }
+
+    /// A frame with its last `window` substeps taped: all of it, or only
+    /// those substeps (`rest_only`).
+    fn taped_frame(
+        &mut self,
+        anchors_from: &[[f64; 3]],
+        anchors_to: &[[f64; 3]],
+        active: &[bool],
+        window: usize,
+        rest_only: bool,
+    ) -> Result<FrameTape<T>, SimError> {
         let steps = self.config.substeps_per_frame;
         let mut tape = FrameTape::new(window.min(steps), self.consts.res);
-        let first = steps - tape.window;
-        let no_grasp = vec![false; anchors_from.len()];
+        let first = if rest_only { steps - tape.window } else { 0 };
         let run = FrameRun::Taped(&mut tape, first);
-        self.advance_frame(anchors_from, anchors_to, &no_grasp, run)?;
+        self.advance_frame(anchors_from, anchors_to, active, run)?;
         Ok(tape)
     }
 

@@ -4,6 +4,7 @@
 use anyhow::{Context, Result, bail};
 use dm_cuda::{CudaDevice, CudaWorld, DeviceReal};
 use dm_mpm::scenes::{BenchExperts, bench_block};
+use dm_mpm::state::Particles;
 use dm_mpm::{ActuatorConfig, ActuatorMode, FloorConfig, ParticleMaterial, PhysicsConfig, World};
 use rand::{RngExt, SeedableRng};
 use std::sync::Arc;
@@ -141,21 +142,22 @@ fn parity_anchors(scene: ParityScene, frame: usize) -> (Vec<[f64; 3]>, Vec<[f64;
 
 /// Largest position and F differences between the two worlds.
 fn compare<T: DeviceReal>(cpu: &World<T>, gpu: &mut CudaWorld<T>) -> Result<(f64, f64)> {
-    let gpu_state = gpu.state()?;
-    let cpu_state = cpu.state();
-    let dx = cpu_state
-        .x
-        .iter()
-        .zip(&gpu_state.x)
-        .map(|(a, b)| (a - b).norm().to_f64())
-        .fold(0.0, f64::max);
-    let df = cpu_state
-        .f
-        .iter()
-        .zip(&gpu_state.f)
-        .map(|(a, b)| (a - b).norm().to_f64())
-        .fold(0.0, f64::max);
-    Ok((dx, df))
+    Ok(largest_differences(&cpu.state(), &gpu.state()?))
+}
+
+/// Largest position and F differences between two states.
+fn largest_differences<T: DeviceReal>(a: &Particles<T>, b: &Particles<T>) -> (f64, f64) {
+    let dx =
+        a.x.iter()
+            .zip(&b.x)
+            .map(|(a, b)| (a - b).norm().to_f64())
+            .fold(0.0, f64::max);
+    let df =
+        a.f.iter()
+            .zip(&b.f)
+            .map(|(a, b)| (a - b).norm().to_f64())
+            .fold(0.0, f64::max);
+    (dx, df)
 }
 
 /// Tolerance of the one-frame position parity, relative to the domain.
@@ -488,12 +490,7 @@ fn frame_gradient_parity_run<T: DeviceReal>(
     gpu.set_state(&start)?;
     let gpu_kept = gpu.step_frame_keeping(&from, &to, &active, substeps - window)?;
     let domain = cpu.config().domain_size;
-    let dx = kept
-        .x
-        .iter()
-        .zip(&gpu_kept.x)
-        .map(|(a, b)| (a - b).norm().to_f64())
-        .fold(0.0, f64::max);
+    let (dx, _) = largest_differences(&kept, &gpu_kept);
     let kept_ok = dx / domain <= POSITION_PARITY;
     passed &= kept_ok;
     println!(

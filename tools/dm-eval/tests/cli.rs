@@ -26,14 +26,20 @@ fn tiny_scene_and_model(dir: &Path) -> (PathBuf, PathBuf) {
 }
 
 fn run_eval(model: &Path, scene: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_dm-eval"))
+    eval_command(model, scene, out, extra)
+        .output()
+        .expect("dm-eval runs")
+}
+
+fn eval_command(model: &Path, scene: &Path, out: &Path, extra: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_dm-eval"));
+    command
         .arg(model)
         .arg(scene)
         .arg("--out")
         .arg(out)
-        .args(extra)
-        .output()
-        .expect("dm-eval runs")
+        .args(extra);
+    command
 }
 
 const METRICS: [&str; 6] = ["chamfer", "track", "iou", "psnr", "ssim", "lpips"];
@@ -227,12 +233,7 @@ fn eval_on_the_gpu_matches_the_cpu_under_the_emulator() {
         String::from_utf8_lossy(&result.stderr)
     );
     let gpu_out = dir.path().join("gpu");
-    let result = Command::new(env!("CARGO_BIN_EXE_dm-eval"))
-        .arg(&model)
-        .arg(&scene)
-        .arg("--out")
-        .arg(&gpu_out)
-        .args(args)
+    let result = eval_command(&model, &scene, &gpu_out, &args)
         .args(["--device", "cuda"])
         .env("LD_PRELOAD", &emulator)
         .output()

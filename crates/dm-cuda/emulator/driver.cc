@@ -109,32 +109,48 @@ Counts& counts() {
 
 // ---- fibers --------------------------------------------------------------
 //
-// Each thread of a block is a fiber: a stack of its own and the callee-saved
-// registers, switched without a system call. A fiber runs its thread's
-// kernel to the end (or to a barrier), is parked when the thread ends, and
-// runs the same thread index of the next block.
+// Each thread of a block runs as a fiber: on a stack of its own, with the
+// callee-saved registers switched without a system call. A thread that
+// waits at a barrier switches straight to the next thread that can run;
+// a thread that ends hands its stack to the next one if that one has not
+// started, so a kernel without barriers runs all its threads on one stack
+// without a switch. A waiting thread keeps its stack until it ends; stacks
+// come from a pool.
 
-enum State { READY, AT_BLOCK_BARRIER, AT_WARP_BARRIER, DONE };
+enum State { NOT_STARTED, READY, AT_BLOCK_BARRIER, AT_WARP_BARRIER, DONE };
 
 const size_t STACK_BYTES = 256 * 1024;
 const int MAX_THREADS = 1024;
+const uint32_t NO_ROUND = UINT32_MAX;
 
-struct Fiber {
+struct Stack {
     void* saved_sp = nullptr;
-    char* stack = nullptr;
+    char* memory = nullptr;
+    // Where the stack starts below the top of its memory.
+    size_t colour = 0;
+};
+
+struct Thread {
     State state = DONE;
+    Stack* stack = nullptr;
     dm_emu::ThreadContext indices;
+    // Warp exchanges this thread has taken part in.
+    uint32_t rounds = 0;
 };
 
 struct Block {
-    std::vector<Fiber> fibers;
+    Thread threads[MAX_THREADS];
+    std::vector<Stack*> free_stacks;
     void* scheduler_sp = nullptr;
-    Fiber* current = nullptr;
+    Thread* current = nullptr;
     int count = 0;  // threads of the running block
+    bool out_of_stacks = false;
     const Kernel* kernel = nullptr;
     void** params = nullptr;
-    uint64_t slots[MAX_THREADS];
-    bool filled[MAX_THREADS];
+    // Each lane's published value for the warp exchanges of even and odd
+    // rounds, and the round it was published for (NO_ROUND: none).
+    uint64_t slots[2][MAX_THREADS];
+    uint32_t stamps[2][MAX_THREADS];
 };
 
 Block& block() {
@@ -175,34 +191,117 @@ dm_emu_switch:
 
 namespace {
 
-void to_scheduler(Fiber* me) {
-    dm_emu_switch(&me->saved_sp, block().scheduler_sp);
-}
-
-[[noreturn]] void fiber_main() {
-    for (;;) {
-        Block& b = block();
-        Fiber* me = b.current;
-        b.kernel->run(b.params);
-        me->state = DONE;
-        to_scheduler(me);
-    }
-}
-
 // A fresh stack whose first switch enters fiber_main with the alignment
 // of a call (rsp ≡ 8 mod 16 at entry).
-void start_stack(Fiber& f) {
-    uintptr_t top = ((uintptr_t)(f.stack + STACK_BYTES)) & ~(uintptr_t)15;
+[[noreturn]] void fiber_main();
+void start_stack(Stack& s) {
+    uintptr_t top = ((uintptr_t)(s.memory + STACK_BYTES - s.colour)) & ~(uintptr_t)15;
     void** sp = (void**)(top - 16);
     *sp = (void*)&fiber_main;
     for (int r = 0; r < 6; ++r) *--sp = nullptr;
-    f.saved_sp = sp;
+    s.saved_sp = sp;
+}
+
+Stack* take_stack() {
+    Block& b = block();
+    if (!b.free_stacks.empty()) {
+        Stack* s = b.free_stacks.back();
+        b.free_stacks.pop_back();
+        return s;
+    }
+    void* memory = mmap(nullptr, STACK_BYTES, PROT_READ | PROT_WRITE,
+                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    if (memory == MAP_FAILED) return nullptr;
+    Stack* s = new Stack();
+    s->memory = static_cast<char*>(memory);
+    // Stacks a whole number of pages apart would put every stack's top in
+    // the same cache sets; each starts a few lines lower than the last.
+    static size_t stacks_made = 0;
+    s->colour = (stacks_made++ * 320) % (STACK_BYTES / 2);
+    start_stack(*s);
+    return s;
+}
+
+// The thread after `from` in the pass's order that can run, or -1.
+int next_runnable(const Block& b, int from) {
+    for (int i = from + 1; i < b.count; ++i)
+        if (b.threads[i].state == NOT_STARTED || b.threads[i].state == READY) return i;
+    return -1;
+}
+
+// Makes thread `i` current, giving it a stack if it has not started; false
+// when no stack could be had.
+bool enter(Block& b, int i) {
+    Thread& t = b.threads[i];
+    if (t.state == NOT_STARTED) {
+        t.stack = take_stack();
+        if (!t.stack) {
+            b.out_of_stacks = true;
+            return false;
+        }
+        t.state = READY;
+    }
+    b.current = &t;
+    return true;
+}
+
+// Leaves the stack `mine` (its place saved) for the next thread of the
+// pass, or for the scheduler at the pass's end: threads switch to each
+// other directly, in the order a scheduler's pass would run them.
+void switch_onward(Stack* mine, int from) {
+    Block& b = block();
+    const int next = next_runnable(b, from);
+    if (next < 0 || !enter(b, next)) {
+        dm_emu_switch(&mine->saved_sp, b.scheduler_sp);
+        return;
+    }
+    dm_emu_switch(&mine->saved_sp, b.current->stack->saved_sp);
+}
+
+// Runs the current thread's kernel; once it ends, runs the next thread of
+// the pass on the same stack if that one has not started, else gives the
+// stack back and switches to it.
+[[noreturn]] void fiber_main() {
+    for (;;) {
+        Block& b = block();
+        Thread* me = b.current;
+        b.kernel->run(b.params);
+        me->state = DONE;
+        Stack* mine = me->stack;
+        me->stack = nullptr;
+        const int from = (int)(me - b.threads);
+        const int next = next_runnable(b, from);
+        if (next >= 0 && b.threads[next].state == NOT_STARTED) {
+            Thread& t = b.threads[next];
+            t.stack = mine;
+            t.state = READY;
+            b.current = &t;
+            continue;
+        }
+        b.free_stacks.push_back(mine);
+        switch_onward(mine, from);
+    }
 }
 
 void wait(State state) {
-    Fiber* me = block().current;
+    Block& b = block();
+    Thread* me = b.current;
     me->state = state;
-    to_scheduler(me);
+    switch_onward(me->stack, (int)(me - b.threads));
+}
+
+// Starts every thread's stack afresh and gives it back (a block that cannot
+// go on); the block's threads count as ended.
+void abandon_block(Block& b) {
+    for (int i = 0; i < b.count; ++i) {
+        Thread& t = b.threads[i];
+        if (t.stack) {
+            start_stack(*t.stack);
+            b.free_stacks.push_back(t.stack);
+            t.stack = nullptr;
+        }
+        t.state = DONE;
+    }
 }
 
 bool run_block(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::uint3 threads,
@@ -214,63 +313,62 @@ bool run_block(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::
                      kernel.name.c_str(), count, MAX_THREADS);
         return false;
     }
-    while ((int)b.fibers.size() < count) {
-        b.fibers.emplace_back();
-        Fiber& f = b.fibers.back();
-        void* memory = mmap(nullptr, STACK_BYTES, PROT_READ | PROT_WRITE,
-                            MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
-        if (memory == MAP_FAILED) return false;
-        f.stack = static_cast<char*>(memory);
-        start_stack(f);
-    }
     b.kernel = &kernel;
     b.params = params;
     b.count = count;
+    b.out_of_stacks = false;
     for (int i = 0; i < count; ++i) {
-        Fiber& f = b.fibers[i];
-        f.indices.thread = {(unsigned)(i % threads.x), (unsigned)((i / threads.x) % threads.y),
+        Thread& t = b.threads[i];
+        t.indices.thread = {(unsigned)(i % threads.x), (unsigned)((i / threads.x) % threads.y),
                             (unsigned)(i / (threads.x * threads.y))};
-        f.indices.block = index;
-        f.indices.block_dim = threads;
-        f.indices.grid_dim = grid;
-        f.indices.lane = (unsigned)(i % 32);
-        f.indices.warp = (unsigned)(i / 32);
-        f.state = READY;
-        b.filled[i] = false;
+        t.indices.block = index;
+        t.indices.block_dim = threads;
+        t.indices.grid_dim = grid;
+        t.indices.lane = (unsigned)(i % 32);
+        t.indices.warp = (unsigned)(i / 32);
+        t.state = NOT_STARTED;
+        t.stack = nullptr;
+        t.rounds = 0;
+        b.stamps[0][i] = b.stamps[1][i] = NO_ROUND;
     }
+    // Each pass runs the threads that can, in order, each until it ends or
+    // waits at a barrier; between passes, barriers every thread (or every
+    // lane of a warp) has reached are released.
     for (;;) {
-        bool progressed = false;
-        for (int i = 0; i < count; ++i) {
-            Fiber& f = b.fibers[i];
-            if (f.state != READY) continue;
-            b.current = &f;
-            dm_emu_switch(&b.scheduler_sp, f.saved_sp);
-            progressed = true;
+        const int first = next_runnable(b, -1);
+        const bool progressed = first >= 0;
+        if (progressed && enter(b, first))
+            dm_emu_switch(&b.scheduler_sp, b.current->stack->saved_sp);
+        if (b.out_of_stacks) {
+            std::fprintf(stderr, "cuda emulator: %s: no memory for a thread's stack\n",
+                         kernel.name.c_str());
+            abandon_block(b);
+            return false;
         }
         bool live = false, all_at_block_barrier = true;
         for (int i = 0; i < count; ++i) {
-            if (b.fibers[i].state == DONE) continue;
+            if (b.threads[i].state == DONE) continue;
             live = true;
-            if (b.fibers[i].state != AT_BLOCK_BARRIER) all_at_block_barrier = false;
+            if (b.threads[i].state != AT_BLOCK_BARRIER) all_at_block_barrier = false;
         }
         if (!live) return true;
         bool released = false;
         if (all_at_block_barrier) {
             for (int i = 0; i < count; ++i)
-                if (b.fibers[i].state == AT_BLOCK_BARRIER) b.fibers[i].state = READY;
+                if (b.threads[i].state == AT_BLOCK_BARRIER) b.threads[i].state = READY;
             released = true;
         }
         for (int w = 0; w * 32 < count; ++w) {
             bool waiting = false, all = true;
             for (int i = w * 32; i < std::min(count, (w + 1) * 32); ++i) {
-                State s = b.fibers[i].state;
+                State s = b.threads[i].state;
                 if (s == DONE) continue;
                 if (s == AT_WARP_BARRIER) waiting = true;
                 else all = false;
             }
             if (waiting && all) {
                 for (int i = w * 32; i < std::min(count, (w + 1) * 32); ++i)
-                    if (b.fibers[i].state == AT_WARP_BARRIER) b.fibers[i].state = READY;
+                    if (b.threads[i].state == AT_WARP_BARRIER) b.threads[i].state = READY;
                 released = true;
             }
         }
@@ -279,8 +377,8 @@ bool run_block(const Kernel& kernel, void** params, dm_emu::uint3 grid, dm_emu::
                          "cuda emulator: %s block (%u, %u, %u): threads wait at barriers that "
                          "can never be passed\n",
                          kernel.name.c_str(), index.x, index.y, index.z);
-            // The waiting fibers stay suspended mid-kernel: start them afresh.
-            for (Fiber& f : b.fibers) start_stack(f);
+            // The waiting threads' stacks stay suspended mid-kernel.
+            abandon_block(b);
             return false;
         }
     }
@@ -294,36 +392,42 @@ const ThreadContext& context() { return block().current->indices; }
 
 void syncthreads() { wait(AT_BLOCK_BARRIER); }
 
-// One round of a warp's exchange: the calling lane publishes `bits`, every
-// live lane of the warp arrives, `read(first lane's fiber index)` reads
-// what was published (`filled` marks the lanes that did), and every lane
-// leaves before the slots are reused.
+// One round of a warp's exchange: the calling lane publishes `bits` for
+// its round, every live lane of the warp arrives, and `read(slots, lane's
+// stamps, first lane's index, round)` reads what the lanes published for
+// this round. Rounds alternate between two sets of slots: a lane can
+// publish into a set again only two rounds later, after every lane has
+// passed the barrier of the round between, and so has read this one.
 template <class Read>
 static auto warp_round(uint64_t bits, Read read) {
     Block& b = block();
-    const int me = (int)(b.current - b.fibers.data());
-    const int warp_first = me - (int)b.current->indices.lane;
-    b.slots[me] = bits;
-    b.filled[me] = true;
+    Thread& t = *b.current;
+    const int me = (int)(&t - b.threads);
+    const int warp_first = me - (int)t.indices.lane;
+    const uint32_t round = t.rounds++;
+    const int set = (int)(round & 1);
+    b.slots[set][me] = bits;
+    b.stamps[set][me] = round;
     wait(AT_WARP_BARRIER);
-    const auto result = read(b, warp_first);
-    wait(AT_WARP_BARRIER);
-    b.filled[me] = false;
-    return result;
+    return read(b.slots[set], b.stamps[set], warp_first, round);
 }
 
 uint64_t warp_exchange(uint64_t bits, int source) {
-    return warp_round(bits, [&](const Block& b, int warp_first) {
+    return warp_round(bits, [&](const uint64_t* slots, const uint32_t* stamps, int warp_first,
+                                uint32_t round) {
         const int from = warp_first + source;
-        return source >= 0 && source < 32 && from < b.count && b.filled[from] ? b.slots[from] : bits;
+        return source >= 0 && source < 32 && from < block().count && stamps[from] == round
+                   ? slots[from]
+                   : bits;
     });
 }
 
 unsigned warp_ballot(bool flag) {
-    return warp_round(flag, [](const Block& b, int warp_first) {
+    return warp_round(flag, [](const uint64_t* slots, const uint32_t* stamps, int warp_first,
+                               uint32_t round) {
         unsigned bits = 0;
-        for (int lane = 0; lane < 32 && warp_first + lane < b.count; ++lane)
-            if (b.filled[warp_first + lane] && b.slots[warp_first + lane]) bits |= 1u << lane;
+        for (int lane = 0; lane < 32 && warp_first + lane < block().count; ++lane)
+            if (stamps[warp_first + lane] == round && slots[warp_first + lane]) bits |= 1u << lane;
         return bits;
     });
 }

@@ -229,7 +229,7 @@ extern "C" __global__ void residual_number_nodes(
 {
     long long i = (long long)blockIdx.x * blockDim.x + threadIdx.x;
     if (i >= cells) return;
-    const int id = (int)(scanned[i] + chunk_sums[i / SCAN_THREADS]);
+    const int id = (int)(scanned[i] + chunk_sums[i / SCAN_CHUNK]);
     if (used[i]) {
         node_id[i] = id;
         node_cell[id] = i;

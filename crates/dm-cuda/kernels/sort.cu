@@ -5,7 +5,12 @@
 // block of P2G also share a small box of nodes.
 
 #define SORT_BLOCK 4
-#define SCAN_THREADS 1024
+// A block of the scan: SCAN_THREADS threads, each adding SCAN_ITEMS
+// consecutive values on its own before the threads scan their sums, so a
+// chunk of SCAN_CHUNK values passes few barriers.
+#define SCAN_THREADS 256
+#define SCAN_ITEMS 4
+#define SCAN_CHUNK (SCAN_THREADS * SCAN_ITEMS)
 
 __device__ __forceinline__ unsigned cell_key(const Consts& k, const v3& x) {
     int nb = (k.res + SORT_BLOCK - 1) / SORT_BLOCK;
@@ -44,12 +49,12 @@ __device__ unsigned block_exclusive_scan(unsigned value, unsigned* total) {
     if (lane == 31) warp_sums[warp] = x;
     __syncthreads();
     if (warp == 0) {
-        unsigned s = warp_sums[lane];
+        unsigned s = lane < SCAN_THREADS / 32 ? warp_sums[lane] : 0u;
         for (int offset = 1; offset < 32; offset <<= 1) {
             unsigned y = __shfl_up_sync(FULL_MASK, s, offset);
             if (lane >= offset) s += y;
         }
-        warp_sums[lane] = s;
+        if (lane < SCAN_THREADS / 32) warp_sums[lane] = s;
     }
     __syncthreads();
     unsigned before = warp > 0 ? warp_sums[warp - 1] : 0u;
@@ -58,23 +63,40 @@ __device__ unsigned block_exclusive_scan(unsigned value, unsigned* total) {
     return before + x - value;
 }
 
-// Scans each chunk of SCAN_THREADS counts in place; chunk sums to `sums`.
-extern "C" __global__ void scan_chunks(unsigned* __restrict__ data, int n, unsigned* __restrict__ sums) {
-    int i = blockIdx.x * SCAN_THREADS + threadIdx.x;
+// Exclusive scan in place of the SCAN_CHUNK values of `data` from `start`
+// (those at or past `n` count as 0 and are left alone); returns their sum.
+__device__ unsigned chunk_exclusive_scan(unsigned* __restrict__ data, int start, int n) {
+    const int first = start + threadIdx.x * SCAN_ITEMS;
+    unsigned items[SCAN_ITEMS];
+    unsigned own = 0;
+    for (int j = 0; j < SCAN_ITEMS; ++j) {
+        items[j] = first + j < n ? data[first + j] : 0u;
+        own += items[j];
+    }
     unsigned total;
-    unsigned ex = block_exclusive_scan(i < n ? data[i] : 0u, &total);
-    if (i < n) data[i] = ex;
+    unsigned before = block_exclusive_scan(own, &total);
+    for (int j = 0; j < SCAN_ITEMS; ++j) {
+        if (first + j < n) data[first + j] = before;
+        before += items[j];
+    }
+    return total;
+}
+
+// Scans each chunk of SCAN_CHUNK counts in place; chunk sums to `sums`.
+extern "C" __global__ void scan_chunks(unsigned* __restrict__ data, int n, unsigned* __restrict__ sums) {
+    unsigned total = chunk_exclusive_scan(data, blockIdx.x * SCAN_CHUNK, n);
     if (threadIdx.x == 0) sums[blockIdx.x] = total;
 }
 
 // Scans the chunk sums in place (one block, chunk after chunk).
 extern "C" __global__ void scan_sums(unsigned* __restrict__ sums, int m) {
     unsigned carry = 0;
-    for (int start = 0; start < m; start += SCAN_THREADS) {
-        int i = start + threadIdx.x;
-        unsigned total;
-        unsigned ex = block_exclusive_scan(i < m ? sums[i] : 0u, &total);
-        if (i < m) sums[i] = ex + carry;
+    for (int start = 0; start < m; start += SCAN_CHUNK) {
+        // Every thread has read the chunk before any adds the carry.
+        unsigned total = chunk_exclusive_scan(sums, start, m);
+        const int first = start + threadIdx.x * SCAN_ITEMS;
+        for (int j = 0; j < SCAN_ITEMS; ++j)
+            if (first + j < m) sums[first + j] += carry;
         carry += total;
     }
 }
@@ -87,5 +109,5 @@ extern "C" __global__ void scatter_order(
     int p = blockIdx.x * blockDim.x + threadIdx.x;
     if (p >= n) return;
     unsigned key = keys[p];
-    order[starts[key] + sums[key / SCAN_THREADS] + ranks[p]] = (unsigned)p;
+    order[starts[key] + sums[key / SCAN_CHUNK] + ranks[p]] = (unsigned)p;
 }

@@ -42,35 +42,67 @@ pub fn build(dir: &Path) -> Result<PathBuf, String> {
     std::fs::write(&unit, emulated_unit())
         .map_err(|e| format!("writing {}: {e}", unit.display()))?;
     let library = dir.join("libcuda.so");
+    let include = sources.to_string_lossy().into_owned();
+    let driver = sources.join("driver.cc").to_string_lossy().into_owned();
+    compile(
+        "the CUDA emulator",
+        &[
+            "-std=c++17",
+            "-O1",
+            "-fPIC",
+            "-shared",
+            "-Wl,-soname,libcuda.so",
+            "-I",
+            &include,
+            &driver,
+            &unit.to_string_lossy(),
+            "-o",
+            &library.to_string_lossy(),
+        ],
+    )?;
+    Ok(library)
+}
+
+/// Builds `emulator/checks/NAME.cc`, a program that calls the emulated
+/// driver directly, linked against `library` (from [`build`]), into the
+/// library's folder; returns the program's path. Run it with the library's
+/// folder on `LD_LIBRARY_PATH`.
+pub fn build_check(name: &str, library: &Path) -> Result<PathBuf, String> {
+    let source = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("emulator/checks")
+        .join(format!("{name}.cc"));
+    let dir = library.parent().unwrap_or(Path::new("."));
+    let program = dir.join(name);
+    compile(
+        name,
+        &[
+            "-std=c++17",
+            "-O1",
+            &source.to_string_lossy(),
+            &library.to_string_lossy(),
+            "-o",
+            &program.to_string_lossy(),
+        ],
+    )?;
+    Ok(program)
+}
+
+/// Runs `$CXX`, else the first of `c++` and `clang++` found, on `args`.
+fn compile(what: &str, args: &[&str]) -> Result<(), String> {
     let compilers = std::env::var("CXX")
         .map(|c| vec![c])
         .unwrap_or_else(|_| vec!["c++".into(), "clang++".into()]);
     for compiler in &compilers {
-        let Ok(output) = Command::new(compiler)
-            .args([
-                "-std=c++17",
-                "-O1",
-                "-fPIC",
-                "-shared",
-                "-Wl,-soname,libcuda.so",
-            ])
-            .arg("-I")
-            .arg(&sources)
-            .arg(sources.join("driver.cc"))
-            .arg(&unit)
-            .arg("-o")
-            .arg(&library)
-            .output()
-        else {
+        let Ok(output) = Command::new(compiler).args(args).output() else {
             continue;
         };
         if !output.status.success() {
             return Err(format!(
-                "{compiler} could not build the CUDA emulator:\n{}",
+                "{compiler} could not build {what}:\n{}",
                 String::from_utf8_lossy(&output.stderr)
             ));
         }
-        return Ok(library);
+        return Ok(());
     }
     Err(format!(
         "no C++ compiler found (tried {compilers:?}); set CXX"

@@ -29,8 +29,10 @@ pub(crate) fn launch_for(count: usize) -> LaunchConfig {
 
 /// Cells per block edge of the sort keys (sort.cu's SORT_BLOCK).
 const SORT_BLOCK: usize = 4;
-/// Values one block of the scan handles (sort.cu's SCAN_THREADS).
-const SCAN_THREADS: usize = 1024;
+/// Values one block of the scan handles (sort.cu's SCAN_CHUNK), and its
+/// threads (SCAN_THREADS).
+pub(crate) const SCAN_CHUNK: usize = 1024;
+pub(crate) const SCAN_THREADS: u32 = 256;
 
 /// How many sort keys a grid of `res`³ cells has.
 fn sort_key_count(res: usize) -> usize {
@@ -113,7 +115,7 @@ impl SortBuffers {
             keys: stream.alloc_zeros(n)?,
             ranks: stream.alloc_zeros(n)?,
             counts: stream.alloc_zeros(keys)?,
-            chunk_sums: stream.alloc_zeros(keys.div_ceil(SCAN_THREADS))?,
+            chunk_sums: stream.alloc_zeros(keys.div_ceil(SCAN_CHUNK))?,
             order: stream.alloc_zeros(n)?,
         })
     }
@@ -167,7 +169,7 @@ impl<T: DeviceReal> Launcher<'_, T> {
         let stream = self.stream;
         let n = self.n_i32();
         let keys = sort_key_count(self.res);
-        let (keys_i32, chunks) = (keys as i32, keys.div_ceil(SCAN_THREADS));
+        let (keys_i32, chunks) = (keys as i32, keys.div_ceil(SCAN_CHUNK));
         let chunks_i32 = chunks as i32;
         stream.memset_zeros(&mut sort.counts)?;
         let mut launch = stream.launch_builder(&self.kernels.cell_count);
@@ -183,7 +185,7 @@ impl<T: DeviceReal> Launcher<'_, T> {
         unsafe { launch.launch(launch_for(self.n)) }?;
         let scan_block = |blocks: usize| LaunchConfig {
             grid_dim: (blocks as u32, 1, 1),
-            block_dim: (SCAN_THREADS as u32, 1, 1),
+            block_dim: (SCAN_THREADS, 1, 1),
             shared_mem_bytes: 0,
         };
         let mut launch = stream.launch_builder(&self.kernels.scan_chunks);

@@ -12,7 +12,7 @@
 use crate::device::CudaDevice;
 use crate::error::CudaError;
 use crate::kernels::RESIDUAL_ENTRY_POINTS;
-use crate::launch::launch_for;
+use crate::launch::{SCAN_CHUNK, SCAN_THREADS, launch_for};
 use crate::world::DeviceReal;
 use cudarc::driver::{
     CudaFunction, CudaSlice, CudaStream, CudaView, CudaViewMut, LaunchConfig, PushKernelArg,
@@ -32,8 +32,6 @@ const GEMM_TILE: usize = 64;
 const GEMM_THREADS: u32 = 256;
 /// residual.cu's REDUCE_ROWS.
 const REDUCE_ROWS: usize = 256;
-/// sort.cu's SCAN_THREADS.
-const SCAN_THREADS: usize = 1024;
 /// The largest box of cells the nodes are numbered in (12 bytes a cell:
 /// marks, their scan and node ids, 768 MiB at most).
 const MAX_STENCIL_CELLS: usize = 1 << 26;
@@ -1120,10 +1118,10 @@ impl Ops<'_> {
         )?;
 
         let mut scanned = self.stream.clone_dtod(&used)?;
-        let chunks = cells.div_ceil(SCAN_THREADS);
+        let chunks = cells.div_ceil(SCAN_CHUNK);
         let mut chunk_sums = self.stream.alloc_zeros::<u32>(chunks)?;
         let (cells_i, chunks_i) = (cells as i32, chunks as i32);
-        let scan_block = |blocks: usize| blocks_of((blocks as u32, 1, 1), SCAN_THREADS as u32);
+        let scan_block = |blocks: usize| blocks_of((blocks as u32, 1, 1), SCAN_THREADS);
         launch!(
             self,
             "scan_chunks",

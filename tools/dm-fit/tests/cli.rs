@@ -331,3 +331,99 @@ fn strip_seconds(value: &mut serde_json::Value) {
         _ => {}
     }
 }
+
+/// Relative difference allowed between a CPU fit's numbers and the same
+/// fit on the GPU: the emulated GPU runs the f32 kernels, the CPU f64, and
+/// a short fit carries their round-off through a few steps (about 1e-7
+/// relative on this scene).
+const GPU_FIT_TOLERANCE: f64 = 1e-4;
+
+/// `dm-fit --device cuda` under the driver's emulator
+/// (crates/dm-cuda/emulator): the residual check's physics-only fit runs
+/// beside the main fit, its progress lines passed on, and the fit — its
+/// material, losses and the check's decision — is the CPU fit's to
+/// round-off.
+#[test]
+fn fit_on_the_gpu_with_the_check_beside_it_matches_the_cpu_under_the_emulator() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let config = SynthConfig {
+        frames: 10,
+        truth_particles: 800,
+        bundle_particles: 400,
+        ..SynthConfig::tiny(Preset::Rope, 3)
+    };
+    dm_synth::generate(
+        &config,
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let emulator =
+        dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
+    // One step of each dynamics stage with the default network and check.
+    let args = [
+        "--iters",
+        "1",
+        "--stage2-iters",
+        "0",
+        "--gain-evals",
+        "0",
+        "--residual-iters",
+        "1",
+        "--rgb-iters",
+        "0",
+    ];
+    let cpu = dir.path().join("cpu");
+    fit_with(&scene, &cpu, &args);
+    let gpu = dir.path().join("gpu");
+    let emulated = [("LD_PRELOAD", emulator.to_str().expect("utf-8 path"))];
+    let output = fit_with_env(
+        &scene,
+        &gpu,
+        &[&args[..], &["--device", "cuda"]].concat(),
+        &emulated,
+    );
+    let lines = String::from_utf8_lossy(&output.stdout) + String::from_utf8_lossy(&output.stderr);
+    assert!(
+        lines.contains("beside this fit") && lines.contains("[no network] Material1 1/1"),
+        "the check's fit did not run beside the main one:\n{lines}"
+    );
+    assert!(
+        gpu.join("residual_check/model.json").is_file(),
+        "no physics-only model"
+    );
+    let report = |dir: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.join("fit_report.json")).expect("report"))
+            .expect("json")
+    };
+    let (cpu, gpu) = (report(&cpu), report(&gpu));
+    assert_eq!(cpu["options"]["device"], "cpu");
+    assert_eq!(gpu["options"]["device"], "cuda");
+    assert_eq!(
+        cpu["residual"]["check"]["kept"], gpu["residual"]["check"]["kept"],
+        "the check decided otherwise"
+    );
+    let numbers = [
+        "/material/E_median_pa",
+        "/material/nu_median",
+        "/loss/initial",
+        "/loss/final",
+        "/residual/check/track_with",
+        "/residual/check/track_without",
+    ];
+    for pointer in numbers {
+        let value = |report: &serde_json::Value| {
+            report
+                .pointer(pointer)
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or_else(|| panic!("{pointer} is not a number"))
+        };
+        let (c, g) = (value(&cpu), value(&gpu));
+        assert!(
+            (c - g).abs() <= GPU_FIT_TOLERANCE * c.abs(),
+            "{pointer}: CPU {c}, GPU {g}"
+        );
+    }
+}

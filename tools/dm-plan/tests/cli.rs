@@ -1,7 +1,8 @@
 //! `dm-plan` from the command line: plan.json's contract keys, the video,
-//! and a bad goal refused with nothing written.
+//! a bad goal refused with nothing written, and the plan on the GPU.
 
 use dm_synth::{Preset, SynthConfig};
+use std::path::Path;
 use std::process::Command;
 
 #[test]
@@ -93,4 +94,88 @@ fn plan_writes_its_record_actions_rollouts_and_video() {
         "{stderr}"
     );
     assert!(!dir.path().join("refused").exists());
+}
+
+/// Relative difference allowed between a plan's costs on the CPU (f64)
+/// and on the GPU (f32 kernels): a short plan carries their round-off
+/// through a few rollouts and gradient steps (about 1e-7 relative here).
+const GPU_PLAN_TOLERANCE: f64 = 1e-4;
+
+/// `dm-plan --device cuda` under the driver's emulator
+/// (crates/dm-cuda/emulator): MPPI's samples side by side on their
+/// streams and the gradient steps through the GPU adjoint give the CPU's
+/// plan to round-off.
+#[test]
+fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let config = SynthConfig {
+        frames: 10,
+        truth_particles: 800,
+        bundle_particles: 400,
+        ..SynthConfig::tiny(Preset::Rope, 3)
+    };
+    dm_synth::generate(
+        &config,
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let emulator =
+        dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
+    let plan = |out: &Path, device: &str| -> serde_json::Value {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_dm-plan"));
+        command
+            .arg(dir.path().join("unused"))
+            .args(["--untrained", "--goal", "straighten", "--horizon", "6"])
+            .args([
+                "--samples",
+                "4",
+                "--iterations",
+                "2",
+                "--gradient-iters",
+                "2",
+            ])
+            .args(["--settle-frames", "0", "--no-video", "--device", device])
+            .arg("--bundle")
+            .arg(&scene)
+            .arg("--out")
+            .arg(out);
+        if device == "cuda" {
+            command.env("LD_PRELOAD", &emulator);
+        }
+        let output = command.output().expect("dm-plan runs");
+        assert!(
+            output.status.success(),
+            "{device}: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        serde_json::from_slice(&std::fs::read(out.join("plan.json")).expect("plan.json"))
+            .expect("json")
+    };
+    let cpu = plan(&dir.path().join("cpu"), "cpu");
+    let gpu = plan(&dir.path().join("gpu"), "cuda");
+    assert_eq!(gpu["options"]["device"], "cuda");
+    assert_eq!(
+        cpu["rollouts"], gpu["rollouts"],
+        "another number of rollouts"
+    );
+    for pointer in [
+        "/planned/final_chamfer_m",
+        "/planned/final_track_m",
+        "/start/final_chamfer_m",
+    ] {
+        let value = |record: &serde_json::Value| {
+            record
+                .pointer(pointer)
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or_else(|| panic!("{pointer} is not a number: {record}"))
+        };
+        let (c, g) = (value(&cpu), value(&gpu));
+        assert!(
+            (c - g).abs() <= GPU_PLAN_TOLERANCE * c.abs(),
+            "{pointer}: CPU {c}, GPU {g}"
+        );
+    }
 }

@@ -16,7 +16,9 @@
 //! sees training frames only: the held-out frames stay unseen.
 
 use crate::material_fit::{FitError, fit_frames};
-use crate::run::{Checkpoint, FitOptions, FitOutcome, Stage, fit_stages, material_config};
+use crate::run::{
+    Checkpoint, FitOptions, FitOutcome, Stage, StagesStart, fit_stages, material_config,
+};
 use dm_bundle::Bundle;
 use dm_model::metrics::{frame_errors, split_mean};
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
@@ -98,14 +100,17 @@ pub fn fit_physics_only(
 ) -> Result<Option<Checkpoint>, FitError> {
     let dir = out.join(CHECK_DIR);
     let mut sub_progress = |message: &str| progress(&format!("  [no network] {message}"));
+    let stages = StagesStart {
+        resume,
+        initial: Some(without_residual(start)),
+        cancel,
+        ..StagesStart::default()
+    };
     match fit_stages(
         bundle,
         &physics_only_options(options),
         &dir,
-        resume,
-        None,
-        Some(without_residual(start)),
-        cancel,
+        stages,
         &mut sub_progress,
     )? {
         FitOutcome::Finished(_) => Ok(Some(Checkpoint::load(

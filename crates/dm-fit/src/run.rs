@@ -497,9 +497,12 @@ pub fn run_fit(
     stop_after: Option<usize>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
-    fit_stages(
-        bundle, options, out, resume, stop_after, None, None, progress,
-    )
+    let start = StagesStart {
+        resume,
+        stop_after,
+        ..StagesStart::default()
+    };
+    fit_stages(bundle, options, out, start, progress)
 }
 
 /// The same stages from a given starting model instead of the bundle's
@@ -513,34 +516,42 @@ pub fn run_fit_from(
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
-    fit_stages(
-        bundle,
-        options,
-        out,
-        false,
-        None,
-        Some(initial),
-        None,
-        progress,
-    )
+    let start = StagesStart {
+        initial: Some(initial),
+        ..StagesStart::default()
+    };
+    fit_stages(bundle, options, out, start, progress)
 }
 
-/// The stages of one fit, from `initial` (else the bundle's default model)
-/// or, with `resume`, from the checkpoint in `out`; pauses after
-/// `stop_after` checkpointed steps, or after the step during which `cancel`
-/// was set. Each step is one method of [`FitRun`];
-/// the [`Checkpoint`] carries everything that flows from one step to the
-/// next and is written after each.
+/// Where a fit's stages start and when they pause ([`fit_stages`]).
+#[derive(Default)]
+pub(crate) struct StagesStart<'a> {
+    /// Go on from the checkpoint in the model directory, if there is one.
+    pub resume: bool,
+    /// Pause after this many checkpointed steps.
+    pub stop_after: Option<usize>,
+    /// The starting model, else the bundle's default one.
+    pub initial: Option<WorldModel>,
+    /// Pause after the step during which this is set.
+    pub cancel: Option<&'a AtomicBool>,
+}
+
+/// The stages of one fit, started and paused as `start` says. Each step is
+/// one method of [`FitRun`]; the [`Checkpoint`] carries everything that
+/// flows from one step to the next and is written after each.
 pub(crate) fn fit_stages(
     bundle: &Bundle,
     options: &FitOptions,
     out: &Path,
-    resume: bool,
-    stop_after: Option<usize>,
-    initial: Option<WorldModel>,
-    cancel: Option<&AtomicBool>,
+    start: StagesStart,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
+    let StagesStart {
+        resume,
+        stop_after,
+        initial,
+        cancel,
+    } = start;
     options.validate_track_noise()?;
     let mut run = FitRun {
         bundle,

@@ -144,6 +144,18 @@ impl SynthConfig {
         }
     }
 
+    /// 10 frames (the fewest dm-synth makes) and 400 particles: for tests
+    /// of the GPU path under the driver's emulator, which runs the kernels
+    /// far slower than the CPU path does its loops.
+    pub fn smallest(preset: Preset, seed: u64) -> Self {
+        Self {
+            frames: 10,
+            truth_particles: 800,
+            bundle_particles: 400,
+            ..Self::tiny(preset, seed)
+        }
+    }
+
     /// The short scene the diagnosis tests and evaluation use:
     /// 36 frames (1.2 s; the last 11 held out) of 48×36 images, 3000 truth
     /// particles, 120 tracks — a fit and a diagnosis take about a minute

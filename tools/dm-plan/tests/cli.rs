@@ -109,14 +109,8 @@ const GPU_PLAN_TOLERANCE: f64 = 1e-4;
 fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene = dir.path().join("scene");
-    let config = SynthConfig {
-        frames: 10,
-        truth_particles: 800,
-        bundle_particles: 400,
-        ..SynthConfig::tiny(Preset::Rope, 3)
-    };
     dm_synth::generate(
-        &config,
+        &SynthConfig::smallest(Preset::Rope, 3),
         &scene,
         &dir.path().join("t.json"),
         &mut |_, _, _| {},

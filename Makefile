@@ -180,12 +180,13 @@ python: $(PY_VENV)/.installed
 # NVRTC of the setup venv, so `cargo test` compiles every CUDA kernel to PTX.
 NVRTC_LIB = $$(echo $(CURDIR)/$(VENV)/lib/python3*/site-packages/nvidia/cu13/lib)
 
-# pytest runs the package against the tools `cargo test` has just built (target/debug).
+# pytest runs the package against the tools `cargo test` has just built
+# (target/debug), and its GPU path under the driver's emulator those tests built.
 test: setup
 	bash scripts/check_words.sh
 	LD_LIBRARY_PATH=$(NVRTC_LIB)$${LD_LIBRARY_PATH:+:$$LD_LIBRARY_PATH} $(CARGO) test --workspace
 	$(MAKE) python
-	DM_BIN_DIR=$(CURDIR)/target/debug $(PY_VENV)/bin/python -m pytest -q crates/dm-python/tests
+	DM_BIN_DIR=$(CURDIR)/target/debug LD_LIBRARY_PATH=$(NVRTC_LIB)$${LD_LIBRARY_PATH:+:$$LD_LIBRARY_PATH} $(PY_VENV)/bin/python -m pytest -q crates/dm-python/tests
 
 bench: build
 	./target/release/dm-bench mpm --particles 100000 --grid 32 --experts nh

@@ -1,9 +1,11 @@
 """The deformmaster package against the Rust tools: bundles round-trip
 through the Rust reader, stepping from Python equals dm-sim's rollout
-bitwise, renders, material control, errors, the GIL, the Gymnasium env
-and the example script."""
+bitwise, renders, material control, errors, the GIL, the Gymnasium env,
+the example script, and `device="cuda"` under the driver's emulator."""
 
 import json
+import os
+import pathlib
 import shutil
 import subprocess
 import sys
@@ -200,6 +202,53 @@ def test_errors_name_file_and_field(tiny, tmp_path):
         model.simulation(bundle.hand_anchors(0), device="tpu")
     with pytest.raises(dm.ModelError, match="device"):
         model.rollout(bundle, frames=2, device="tpu")
+
+
+# Largest position difference, metres, between the CPU path (f64) and the
+# GPU's f32 kernels after a few frames of the tiny rope: their round-off,
+# 3e-8 m here.
+GPU_POSITION_TOLERANCE_M = 1e-5
+
+# The CUDA driver's emulator (crates/dm-cuda/emulator), which `cargo test
+# --workspace` builds; NVRTC must be on LD_LIBRARY_PATH (`make test` puts
+# it there).
+EMULATOR = pathlib.Path(
+    os.environ.get("DM_CUDA_EMULATOR", REPO / "target" / "tmp" / "cuda-emulator" / "libcuda.so")
+)
+
+
+def test_device_cuda_steps_and_rolls_out_as_the_cpu_under_the_emulator(tiny, tmp_path):
+    if not EMULATOR.is_file():
+        raise FileNotFoundError(
+            f"{EMULATOR} is missing: cargo test --workspace builds it, or set DM_CUDA_EMULATOR"
+        )
+    script = """
+import sys
+import numpy as np
+import deformmaster as dm
+scene, model_dir, out = sys.argv[1:]
+bundle = dm.read_bundle(scene)
+model = dm.load_model(model_dir)
+sims = {d: model.simulation(bundle.hand_anchors(0), device=d) for d in ("cpu", "cuda")}
+for t in range(1, 4):
+    for sim in sims.values():
+        sim.step(bundle.hand_anchors(t))
+np.savez(out, cpu=sims["cpu"].positions, gpu=sims["cuda"].positions,
+         rollout_cpu=model.rollout(bundle, frames=4), rollout_gpu=model.rollout(bundle, frames=4, device="cuda"))
+"""
+    out = tmp_path / "positions.npz"
+    # The driver is chosen when the process starts: the GPU runs in a child.
+    env = dict(os.environ, LD_PRELOAD=str(EMULATOR))
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(tiny["scene"]), str(tiny["model"]), str(out)],
+        env=env, capture_output=True, text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    saved = np.load(out)
+    assert saved["rollout_gpu"].shape == saved["rollout_cpu"].shape
+    for cpu, gpu in (("cpu", "gpu"), ("rollout_cpu", "rollout_gpu")):
+        difference = np.abs(saved[cpu].astype(np.float64) - saved[gpu]).max()
+        assert difference <= GPU_POSITION_TOLERANCE_M, (cpu, difference)
 
 
 def test_the_gil_is_released_while_stepping(tiny):

@@ -92,7 +92,7 @@ extern "C" __global__ void scan_chunks(unsigned* __restrict__ data, int n, unsig
 extern "C" __global__ void scan_sums(unsigned* __restrict__ sums, int m) {
     unsigned carry = 0;
     for (int start = 0; start < m; start += SCAN_CHUNK) {
-        // Every thread has read the chunk before any adds the carry.
+        // Each thread adds the carry to the values it has just written.
         unsigned total = chunk_exclusive_scan(sums, start, m);
         const int first = start + threadIdx.x * SCAN_ITEMS;
         for (int j = 0; j < SCAN_ITEMS; ++j)

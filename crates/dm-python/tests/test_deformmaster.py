@@ -204,8 +204,8 @@ def test_errors_name_file_and_field(tiny, tmp_path):
         model.rollout(bundle, frames=2, device="tpu")
 
 
-# Largest position difference, metres, between the CPU path (f64) and the
-# GPU's f32 kernels after a few frames of the tiny rope: their round-off,
+# Largest position difference, metres, between the CPU and the GPU after a
+# few frames of the tiny rope: both run in f32 but add up in another order;
 # 3e-8 m here.
 GPU_POSITION_TOLERANCE_M = 1e-5
 

@@ -333,9 +333,9 @@ fn strip_seconds(value: &mut serde_json::Value) {
 }
 
 /// Relative difference allowed between a CPU fit's numbers and the same
-/// fit on the GPU: the emulated GPU runs the f32 kernels, the CPU f64, and
-/// a short fit carries their round-off through a few steps (about 1e-7
-/// relative on this scene).
+/// fit on the GPU: both run in f32 but add up particles and nodes in
+/// another order, and a short fit carries that round-off through a few
+/// steps (about 1e-7 relative on this scene).
 const GPU_FIT_TOLERANCE: f64 = 1e-4;
 
 /// `dm-fit --device cuda` under the driver's emulator

@@ -126,8 +126,6 @@ const uint32_t NO_ROUND = UINT32_MAX;
 struct Stack {
     void* saved_sp = nullptr;
     char* memory = nullptr;
-    // Where the stack starts below the top of its memory.
-    size_t colour = 0;
 };
 
 struct Thread {
@@ -195,7 +193,7 @@ namespace {
 // of a call (rsp ≡ 8 mod 16 at entry).
 [[noreturn]] void fiber_main();
 void start_stack(Stack& s) {
-    uintptr_t top = ((uintptr_t)(s.memory + STACK_BYTES - s.colour)) & ~(uintptr_t)15;
+    uintptr_t top = ((uintptr_t)(s.memory + STACK_BYTES)) & ~(uintptr_t)15;
     void** sp = (void**)(top - 16);
     *sp = (void*)&fiber_main;
     for (int r = 0; r < 6; ++r) *--sp = nullptr;
@@ -214,10 +212,6 @@ Stack* take_stack() {
     if (memory == MAP_FAILED) return nullptr;
     Stack* s = new Stack();
     s->memory = static_cast<char*>(memory);
-    // Stacks a whole number of pages apart would put every stack's top in
-    // the same cache sets; each starts a few lines lower than the last.
-    static size_t stacks_made = 0;
-    s->colour = (stacks_made++ * 320) % (STACK_BYTES / 2);
     start_stack(*s);
     return s;
 }

@@ -9,8 +9,8 @@ use crate::identifiability::{
     DEFAULT_TRACK_NOISE_MM, DEFAULT_TRACK_OFFSET_MM, TrackNoise, identifiability_at,
 };
 use crate::material_fit::{
-    FitError, IterationReport, MaterialFitConfig, fit_frames, late_frames_loss, material_step,
-    train_frame_losses_on, train_loss_on,
+    FitError, IterationReport, MaterialFitConfig, RESIDUAL_GROUP, fit_frames, late_frames_loss,
+    material_step, train_frame_losses_on, train_loss_on,
 };
 use crate::optim::{Adam, Bounds, Cmaes, CmaesOptions};
 use crate::residual_check::{
@@ -63,6 +63,12 @@ pub struct FitOptions {
     #[arg(long, value_enum, default_value_t = ResidualKeep::LateFrames)]
     #[serde(default)]
     pub residual_keep: ResidualKeep,
+    /// The residual-only stage's Adam: a fresh one, or stage 2's carried on
+    /// (its step count and its moments of the network; docs/fit.md). A run
+    /// record without this key reads as `fresh`.
+    #[arg(long, value_enum, default_value_t = ResidualAdam::Fresh)]
+    #[serde(default)]
+    pub residual_adam: ResidualAdam,
     /// Keep the residual network only if it lowers the training Track
     /// error by at least this fraction against the same fit without it (0:
     /// no check). Costs one physics-only fit, in `OUT/residual_check/`.
@@ -195,6 +201,18 @@ pub enum ResidualKeep {
     /// The network (the stage's start included) with the lowest L_dyn over
     /// the last 30 % of the training frames (docs/fit.md).
     LateFrames,
+}
+
+/// Where the residual-only stage's Adam starts (docs/fit.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ResidualAdam {
+    /// A new optimiser: its first step moves every weight by the full
+    /// learning rate.
+    #[default]
+    Fresh,
+    /// Stage 2's optimiser restricted to the network's weights.
+    Continued,
 }
 
 /// The network of the residual-only stage with the lowest late-frames
@@ -868,7 +886,8 @@ impl FitRun<'_> {
             _ => Stage::Done,
         };
         // The residual stage's Adam holds the network's group only; it
-        // starts fresh, and so does the stage after it. (A learnt tilt has
+        // carries on from stage 2's (`--residual-adam continued`) or starts
+        // fresh, and the stage after it starts fresh. (A learnt tilt has
         // its own rate: not in the residual stage's Adam, whose parameters
         // hold no tilt group.)
         if residual_stage_runs && previous != Stage::Material1 {
@@ -876,7 +895,13 @@ impl FitRun<'_> {
                 freeze_material: state.stage == Stage::Residual,
                 ..material_config(options, 0, state.stage)
             };
-            state.adam = config.adam(&state.model)?;
+            let adam = config.adam(&state.model)?;
+            state.adam = match options.residual_adam {
+                ResidualAdam::Continued if state.stage == Stage::Residual => state
+                    .adam
+                    .continued_for_group(RESIDUAL_GROUP, adam.config().clone())?,
+                _ => adam,
+            };
         }
         let dynamics_done = matches!(state.stage, Stage::Rgb | Stage::Done);
         if dynamics_done && run_checks_residual(options) && state.model.residual.is_some() {

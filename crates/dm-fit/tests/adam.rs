@@ -145,3 +145,42 @@ fn checkpoint_restore_continue_is_bitwise_identical() {
         );
     }
 }
+
+#[test]
+fn continued_for_one_group_steps_it_exactly_as_the_whole_optimiser_would() {
+    let mut whole = Adam::new(AdamConfig::with_learning_rate(0.05)).expect("config");
+    let mut params = initial_params();
+    for step in 0..4 {
+        let grads = wiggly_gradient(&params, step);
+        whole.step(&mut params, &grads).expect("step");
+    }
+    let only_youngs = |set: &ParamSet| {
+        ParamSet::new()
+            .with_group("youngs_raw", set.get("youngs_raw").expect("group").to_vec())
+            .expect("one group")
+    };
+    let mut part = whole
+        .continued_for_group("youngs_raw", AdamConfig::with_learning_rate(0.05))
+        .expect("group held");
+    assert_eq!(part.step_count(), 4);
+    let mut part_params = only_youngs(&params);
+    for step in 4..8 {
+        let grads = wiggly_gradient(&params, step);
+        whole.step(&mut params, &grads).expect("step");
+        part.step(&mut part_params, &only_youngs(&grads))
+            .expect("step");
+        // Adam is elementwise: the same moments and count give the same bits.
+        assert_eq!(part_params, only_youngs(&params), "step {step}");
+    }
+    assert!(
+        whole
+            .continued_for_group("no_such_group", AdamConfig::default())
+            .is_err()
+    );
+    // Before any step there is nothing to carry: a fresh optimiser.
+    let fresh = Adam::new(AdamConfig::default()).expect("config");
+    let continued = fresh
+        .continued_for_group("youngs_raw", AdamConfig::default())
+        .expect("nothing to carry");
+    assert_eq!(continued, fresh);
+}

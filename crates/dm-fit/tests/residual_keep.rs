@@ -28,6 +28,8 @@ fn residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
         "3e-2",
         "--residual-keep",
         "late-frames",
+        "--residual-adam",
+        "fresh",
         // The kept network is what this test reads, whatever it gains.
         "--residual-min-gain",
         "0",
@@ -70,6 +72,68 @@ fn residual_stage_keeps_the_network_with_the_lowest_late_frames_loss() {
     assert!(
         (saved_loss - kept_loss).abs() <= SAME_ROLLOUT_RELATIVE * kept_loss,
         "saved model's late-frames loss {saved_loss:.9e} != kept {kept_loss:.9e}"
+    );
+}
+
+/// The network's weights after a short fit with `flags`: two stage-2
+/// steps, the residual stage's last network, no residual check.
+fn fitted_network(
+    dir: &std::path::Path,
+    name: &str,
+    bundle: &dm_bundle::Bundle,
+    flags: &[&str],
+) -> Vec<f64> {
+    let mut all = vec![
+        "--residual",
+        "pgnd",
+        "--residual-keep",
+        "last",
+        "--residual-min-gain",
+        "0",
+    ];
+    all.extend_from_slice(flags);
+    let out = dir.join(name);
+    // Two stage-2 steps give the carried moments a history.
+    let options = dm_fit::run::FitOptions {
+        stage2_iters: 2,
+        ..common::fit_options(&all)
+    };
+    run_fit(bundle, &options, &out, false, None, &mut |_| {}).expect("fit");
+    let model: WorldModel = dm_bundle::read_json(&out.join("model.json")).expect("model");
+    model.residual.expect("network").parameters
+}
+
+#[test]
+fn residual_stage_carries_stage_two_adam_on_unless_asked_for_a_fresh_one() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let bundle = common::tiny_rope(dir.path());
+    let before = fitted_network(dir.path(), "none", &bundle, &["--residual-iters", "0"]);
+    let one_step = |adam: &str| {
+        let after = fitted_network(
+            dir.path(),
+            adam,
+            &bundle,
+            &["--residual-iters", "1", "--residual-adam", adam],
+        );
+        let mut moved: Vec<f64> = after
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| (a - b).abs())
+            .collect();
+        moved.sort_by(f64::total_cmp);
+        moved[moved.len() / 2]
+    };
+    let (fresh, continued) = (one_step("fresh"), one_step("continued"));
+    eprintln!(
+        "median |Δw| of the residual stage's first step: fresh {fresh:.4e}, continued {continued:.4e}"
+    );
+    // A fresh Adam's first step is lr·g/(|g| + ε) whatever came before:
+    // the full rate wherever the gradient is well above ε = 1e-8. Carried
+    // on, the step is scaled by the moments of stage 2's gradients too,
+    // which disagree in sign and size (seen: 0.42 of the fresh step).
+    assert!(
+        continued < 0.8 * fresh,
+        "continued first step {continued:.6e} against fresh {fresh:.6e}"
     );
 }
 

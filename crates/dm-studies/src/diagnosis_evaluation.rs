@@ -28,6 +28,7 @@ pub fn quick_fit_options() -> FitOptions {
         residual_iters: 0,
         // No residual-only stage; `last` is what records before the option read as.
         residual_keep: dm_fit::run::ResidualKeep::Last,
+        residual_adam: dm_fit::run::ResidualAdam::Fresh,
         // No network to check.
         residual_min_gain: 0.0,
         window: 20,

@@ -136,6 +136,30 @@ impl Adam {
         Ok(())
     }
 
+    /// An optimiser with `config` for parameters made of group `name`
+    /// alone, carrying on from this one: its step count and its moments
+    /// of that group (none if it has not stepped yet). A new stage that
+    /// steps only part of the parameters goes on from where the previous
+    /// stage left them, instead of a fresh start whose first step moves
+    /// every parameter by a full learning rate.
+    pub fn continued_for_group(&self, name: &str, config: AdamConfig) -> Result<Self, OptimError> {
+        let mut continued = Self::new(config)?;
+        if let Some(moments) = &self.moments {
+            let only = |set: &ParamSet| -> Result<ParamSet, OptimError> {
+                let values = set.get(name).ok_or_else(|| OptimError::LayoutMismatch {
+                    detail: format!("the optimiser holds no group `{name}`"),
+                })?;
+                ParamSet::new().with_group(name, values.to_vec())
+            };
+            continued.moments = Some(Moments {
+                first: only(&moments.first)?,
+                second: only(&moments.second)?,
+            });
+            continued.step_count = self.step_count;
+        }
+        Ok(continued)
+    }
+
     /// Step size used for group `name`.
     pub fn learning_rate_for(&self, name: &str) -> f64 {
         self.config

@@ -1,0 +1,116 @@
+//! `dm-diagnose --device cuda` under the driver's emulator
+//! (crates/dm-cuda/emulator) against the CPU.
+
+use dm_fit::material_fit::{MaterialFitConfig, fit_material};
+use dm_model::{ModelOptions, ResidualKind, WorldModel};
+use dm_synth::{Preset, SynthConfig};
+use std::path::Path;
+use std::process::Command;
+
+/// Largest difference allowed between a candidate's score on the CPU and
+/// on the GPU. Scores are differences of Track-error ratios, of order
+/// 0.01–3; both devices run f32 but add up in another order, and each
+/// score carries that round-off through its candidate's effect fit (seen:
+/// at most 5e-7).
+const GPU_SCORE_TOLERANCE: f64 = 1e-5;
+
+/// Relative difference allowed between the extended model's Track error
+/// on the two devices, for the same reason (seen: 5e-7).
+const GPU_TRACK_TOLERANCE: f64 = 1e-4;
+
+/// The smallest rope, its ground tilted by 8°, a physics-only model fitted
+/// in two material steps, diagnosed on both devices with the effect fits
+/// only (no discovery, detection limits or refit, which would take the
+/// emulator many minutes): the same cause, the hidden tilt, and every
+/// candidate's score as on the CPU.
+#[test]
+fn diagnosis_on_the_gpu_matches_the_cpu_under_the_emulator() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("scene");
+    let config = SynthConfig {
+        effect: Some("ground_tilt:8".parse().expect("effect")),
+        ..SynthConfig::smallest(Preset::Rope, 3)
+    };
+    dm_synth::generate(
+        &config,
+        &scene,
+        &dir.path().join("t.json"),
+        &mut |_, _, _| {},
+    )
+    .expect("scene");
+    let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
+    let options = ModelOptions {
+        residual: ResidualKind::None,
+        ..ModelOptions::default()
+    };
+    let mut model = WorldModel::from_bundle(&bundle, &options).expect("model");
+    let fit = MaterialFitConfig {
+        iterations: 2,
+        ..MaterialFitConfig::default()
+    };
+    fit_material(&mut model, &bundle, &fit, &mut |_| {}).expect("fit");
+    let model_dir = dir.path().join("model");
+    std::fs::create_dir_all(&model_dir).expect("model dir");
+    dm_bundle::write_json_atomic(&model_dir.join("model.json"), &model).expect("model.json");
+    let emulator =
+        dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
+    let diagnose = |out: &Path, device: &str| -> serde_json::Value {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_dm-diagnose"));
+        command
+            .arg(&model_dir)
+            .arg(&scene)
+            .args([
+                "--discover-iters",
+                "0",
+                "--detect-steps",
+                "0",
+                "--refit-iters",
+                "0",
+            ])
+            // The two-step fit leaves the tilt's score at 0.08.
+            .args(["--threshold", "0.05", "--device", device])
+            .arg("--out")
+            .arg(out);
+        if device == "cuda" {
+            command.env("LD_PRELOAD", &emulator);
+        }
+        let output = command.output().expect("dm-diagnose runs");
+        assert!(
+            output.status.success(),
+            "{device}: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        serde_json::from_slice(&std::fs::read(out.join("diagnosis.json")).expect("diagnosis"))
+            .expect("json")
+    };
+    let cpu = diagnose(&dir.path().join("cpu"), "cpu");
+    let gpu = diagnose(&dir.path().join("gpu"), "cuda");
+    assert_eq!(cpu["cause"], "ground_tilt", "the CPU's diagnosis: {cpu}");
+    assert_eq!(gpu["cause"], cpu["cause"]);
+    let scores = |record: &serde_json::Value| -> Vec<(String, f64)> {
+        record["candidates"]
+            .as_array()
+            .expect("candidates")
+            .iter()
+            .map(|c| {
+                let name = c["name"].as_str().expect("name").to_owned();
+                (name, c["score"].as_f64().expect("score"))
+            })
+            .collect()
+    };
+    let (cpu_scores, gpu_scores) = (scores(&cpu), scores(&gpu));
+    assert_eq!(cpu_scores.len(), gpu_scores.len(), "another candidate list");
+    for ((name, c), (gpu_name, g)) in cpu_scores.iter().zip(&gpu_scores) {
+        assert_eq!(name, gpu_name, "candidates in another order");
+        assert!(
+            (c - g).abs() <= GPU_SCORE_TOLERANCE,
+            "{name}: score {c} on the CPU, {g} on the GPU"
+        );
+    }
+    let track = |record: &serde_json::Value| record["gain"]["track_after"].as_f64().expect("track");
+    let (c, g) = (track(&cpu), track(&gpu));
+    assert!(
+        (c - g).abs() <= GPU_TRACK_TOLERANCE * c,
+        "extended model's Track error: CPU {c}, GPU {g}"
+    );
+}

@@ -37,6 +37,10 @@ fn a_killed_fit_resumes_to_the_uninterrupted_files() {
             "pgnd",
             "--residual-iters",
             "2",
+            // The residual stage's Adam carried over from stage 2: its
+            // moments must survive the checkpoint at the stage's start.
+            "--residual-adam",
+            "continued",
             "--rgb-iters",
             "2",
         ]);

@@ -1,8 +1,10 @@
 //! `dm-diagnose --device cuda` under the driver's emulator
 //! (crates/dm-cuda/emulator) against the CPU.
 
-use dm_fit::material_fit::{MaterialFitConfig, fit_material};
-use dm_model::{ModelOptions, ResidualKind, WorldModel};
+// The diagnosis library's tests fit their models the same way.
+#[path = "../../../crates/dm-diagnose/tests/common/mod.rs"]
+mod common;
+
 use dm_synth::{Preset, SynthConfig};
 use std::path::Path;
 use std::process::Command;
@@ -39,19 +41,7 @@ fn diagnosis_on_the_gpu_matches_the_cpu_under_the_emulator() {
     )
     .expect("scene");
     let bundle = dm_bundle::Bundle::open(&scene).expect("bundle");
-    let options = ModelOptions {
-        residual: ResidualKind::None,
-        ..ModelOptions::default()
-    };
-    let mut model = WorldModel::from_bundle(&bundle, &options).expect("model");
-    let fit = MaterialFitConfig {
-        iterations: 2,
-        ..MaterialFitConfig::default()
-    };
-    fit_material(&mut model, &bundle, &fit, &mut |_| {}).expect("fit");
-    let model_dir = dir.path().join("model");
-    std::fs::create_dir_all(&model_dir).expect("model dir");
-    dm_bundle::write_json_atomic(&model_dir.join("model.json"), &model).expect("model.json");
+    let model_dir = common::fit_physics_only(&bundle, 2, &dir.path().join("model"));
     let emulator =
         dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
     let diagnose = |out: &Path, device: &str| -> serde_json::Value {

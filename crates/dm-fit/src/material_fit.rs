@@ -96,9 +96,14 @@ fn learn_effects_by_default() -> bool {
 }
 
 impl MaterialFitConfig {
-    /// Adam with the material learning rate and, for a model with a
-    /// residual, the network's own (Adam refuses rates for absent groups).
+    /// A fresh Adam with [`Self::adam_config`].
     pub fn adam(&self, model: &WorldModel) -> Result<Adam, OptimError> {
+        Adam::new(self.adam_config(model))
+    }
+
+    /// Adam's settings: the material learning rate and, for a model with a
+    /// residual, the network's own (Adam refuses rates for absent groups).
+    pub fn adam_config(&self, model: &WorldModel) -> AdamConfig {
         let mut config = AdamConfig::with_learning_rate(self.learning_rate);
         if model.residual.is_some() {
             config
@@ -126,7 +131,7 @@ impl MaterialFitConfig {
                 learnt_effects::FORCE_FIELD_RATE_FACTOR * effect_rate,
             );
         }
-        Adam::new(config)
+        config
     }
 }
 

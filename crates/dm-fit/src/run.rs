@@ -895,12 +895,11 @@ impl FitRun<'_> {
                 freeze_material: state.stage == Stage::Residual,
                 ..material_config(options, 0, state.stage)
             };
-            let adam = config.adam(&state.model)?;
             state.adam = match options.residual_adam {
                 ResidualAdam::Continued if state.stage == Stage::Residual => state
                     .adam
-                    .continued_for_group(RESIDUAL_GROUP, adam.config().clone())?,
-                _ => adam,
+                    .continued_for_group(RESIDUAL_GROUP, config.adam_config(&state.model))?,
+                _ => config.adam(&state.model)?,
             };
         }
         let dynamics_done = matches!(state.stage, Stage::Rgb | Stage::Done);

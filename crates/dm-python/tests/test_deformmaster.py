@@ -255,7 +255,9 @@ def test_the_gil_is_released_while_stepping(tiny):
     bundle = dm.read_bundle(tiny["scene"])
     model = dm.load_model(tiny["model"])
     sim = model.simulation(bundle.hand_anchors(0))
-    path = hand_path(bundle)
+    # The scene's path ten times over: long enough that the timing below
+    # is not at the mercy of a fast machine.
+    path = np.concatenate([hand_path(bundle)] * 10)
     ticks = 0
     worker = threading.Thread(target=sim.step_many, args=(path,))
     start = time.perf_counter()

@@ -87,6 +87,33 @@ pub fn build_check(name: &str, library: &Path) -> Result<PathBuf, String> {
     Ok(program)
 }
 
+/// Runs a tool's `command` with `--device DEVICE` appended, under the
+/// emulator `library` (from [`build`]) in place of the driver when DEVICE
+/// is `cuda`; a failed run's error names the device and carries the
+/// tool's standard error.
+pub fn run_on_device(
+    command: &mut Command,
+    device: &str,
+    library: &Path,
+) -> Result<std::process::Output, String> {
+    command.args(["--device", device]);
+    if device == "cuda" {
+        command.env("LD_PRELOAD", library);
+    }
+    let output = command
+        .output()
+        .map_err(|e| format!("{device}: {:?} did not start: {e}", command.get_program()))?;
+    if !output.status.success() {
+        return Err(format!(
+            "{device}: {:?} failed ({}):\n{}",
+            command.get_program(),
+            output.status,
+            String::from_utf8_lossy(&output.stderr)
+        ));
+    }
+    Ok(output)
+}
+
 /// Runs `$CXX`, else the first of `c++` and `clang++` found, on `args`.
 fn compile(what: &str, args: &[&str]) -> Result<(), String> {
     let compilers = std::env::var("CXX")

@@ -58,18 +58,11 @@ fn diagnosis_on_the_gpu_matches_the_cpu_under_the_emulator() {
                 "0",
             ])
             // The two-step fit leaves the tilt's score at 0.08.
-            .args(["--threshold", "0.05", "--device", device])
+            .args(["--threshold", "0.05"])
             .arg("--out")
             .arg(out);
-        if device == "cuda" {
-            command.env("LD_PRELOAD", &emulator);
-        }
-        let output = command.output().expect("dm-diagnose runs");
-        assert!(
-            output.status.success(),
-            "{device}: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        dm_cuda::emulator::run_on_device(&mut command, device, &emulator)
+            .unwrap_or_else(|e| panic!("{e}"));
         serde_json::from_slice(&std::fs::read(out.join("diagnosis.json")).expect("diagnosis"))
             .expect("json")
     };

@@ -224,30 +224,20 @@ fn eval_on_the_gpu_matches_the_cpu_under_the_emulator() {
     let (scene, model) = tiny_scene_and_model(dir.path());
     let emulator =
         dm_cuda::emulator::build(&dir.path().join("emulator")).unwrap_or_else(|e| panic!("{e}"));
-    let args = ["--skip-lpips", "--lpips-dir", "none"];
-    let cpu_out = dir.path().join("cpu");
-    let result = run_eval(&model, &scene, &cpu_out, &args);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let gpu_out = dir.path().join("gpu");
-    let result = eval_command(&model, &scene, &gpu_out, &args)
-        .args(["--device", "cuda"])
-        .env("LD_PRELOAD", &emulator)
-        .output()
-        .expect("dm-eval runs");
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let read = |out: &Path| -> serde_json::Value {
+    let eval = |device: &str| -> serde_json::Value {
+        let out = dir.path().join(device);
+        let mut command = eval_command(
+            &model,
+            &scene,
+            &out,
+            &["--skip-lpips", "--lpips-dir", "none"],
+        );
+        dm_cuda::emulator::run_on_device(&mut command, device, &emulator)
+            .unwrap_or_else(|e| panic!("{e}"));
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).expect("metrics.json"))
             .expect("json")
     };
-    let (cpu, gpu) = (read(&cpu_out), read(&gpu_out));
+    let (cpu, gpu) = (eval("cpu"), eval("cuda"));
     assert_eq!(cpu["run"]["device"], "cpu");
     assert_eq!(gpu["run"]["device"], "cuda");
     for split in ["train", "test"] {

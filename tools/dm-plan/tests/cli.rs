@@ -132,20 +132,13 @@ fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
                 "--gradient-iters",
                 "2",
             ])
-            .args(["--settle-frames", "0", "--no-video", "--device", device])
+            .args(["--settle-frames", "0", "--no-video"])
             .arg("--bundle")
             .arg(&scene)
             .arg("--out")
             .arg(out);
-        if device == "cuda" {
-            command.env("LD_PRELOAD", &emulator);
-        }
-        let output = command.output().expect("dm-plan runs");
-        assert!(
-            output.status.success(),
-            "{device}: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        dm_cuda::emulator::run_on_device(&mut command, device, &emulator)
+            .unwrap_or_else(|e| panic!("{e}"));
         serde_json::from_slice(&std::fs::read(out.join("plan.json")).expect("plan.json"))
             .expect("json")
     };

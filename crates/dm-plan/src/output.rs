@@ -7,9 +7,18 @@ use dm_bundle::{write_json_atomic, write_npy_file};
 use crate::PlanError;
 use crate::run::RunResult;
 
-fn frames_array(frames: &[Vec<[f64; 3]>]) -> ndarray::Array3<f32> {
+/// Frames of points as planned.npy and executed.npy hold them, (T, N, 3).
+pub fn frames_array(frames: &[Vec<[f64; 3]>]) -> ndarray::Array3<f32> {
     let n = frames.first().map_or(0, Vec::len);
     ndarray::Array3::from_shape_fn((frames.len(), n, 3), |(t, i, a)| frames[t][i][a] as f32)
+}
+
+/// The hands' anchors carried out per frame as actions.npy holds them,
+/// (T, H, 3) metres.
+pub fn actions_array(result: &RunResult) -> ndarray::Array3<f64> {
+    let hands = &result.hands;
+    let h = hands.first().map_or(0, Vec::len);
+    ndarray::Array3::from_shape_fn((hands.len(), h, 3), |(t, i, a)| hands[t][i][a])
 }
 
 /// Writes actions.json/.npy, planned.npy, executed.npy, goal.npy and
@@ -20,9 +29,7 @@ pub fn write_outputs(out: &Path, result: &RunResult) -> Result<(), PlanError> {
         problem: format!("creating the directory: {e}"),
     })?;
     let hands = &result.hands;
-    let h = hands.first().map_or(0, Vec::len);
-    let actions = ndarray::Array3::from_shape_fn((hands.len(), h, 3), |(t, i, a)| hands[t][i][a]);
-    write_npy_file(&out.join("actions.npy"), &actions)?;
+    write_npy_file(&out.join("actions.npy"), &actions_array(result))?;
     write_json_atomic(
         &out.join("actions.json"),
         &serde_json::json!({

@@ -22,7 +22,7 @@ pub struct PyBundle {
     pub inner: Bundle,
 }
 
-fn to_json_object<'py>(
+pub(crate) fn to_json_object<'py>(
     py: Python<'py>,
     value: &impl serde::Serialize,
 ) -> PyResult<Bound<'py, PyAny>> {

@@ -1,7 +1,7 @@
 //! `deformmaster._native`: the Rust side of the `deformmaster` Python
 //! package (docs/python.md). Scene bundles as NumPy arrays, fitted world
 //! models stepped frame by frame with the GIL released, renders with the
-//! fitted splats, the per-frame metrics. The Python layer
+//! fitted splats, the per-frame metrics, dm-plan's planner. The Python layer
 //! (`python/deformmaster/`) coerces array types and adds the Gymnasium
 //! environment; all physics runs here.
 //!
@@ -12,6 +12,7 @@
 mod arrays;
 mod bundle;
 mod model;
+mod plan;
 mod render;
 
 use pyo3::exceptions::PyException;
@@ -82,6 +83,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SimulationError", py.get_type::<SimulationError>())?;
     bundle::register(m)?;
     model::register(m)?;
+    plan::register(m)?;
     render::register(m)?;
     Ok(())
 }

@@ -1,7 +1,7 @@
 """The deformmaster package against the Rust tools: bundles round-trip
 through the Rust reader, stepping from Python equals dm-sim's rollout
-bitwise, renders, material control, errors, the GIL, the Gymnasium env,
-the example script, and `device="cuda"` under the driver's emulator."""
+bitwise, renders, material control, errors, the GIL, planning as dm-plan
+plans, the Gymnasium env, the example script, and `device="cuda"` under the driver's emulator."""
 
 import json
 import os
@@ -279,6 +279,59 @@ def test_the_gil_is_released_while_stepping(tiny):
         with pytest.raises(dm.SimulationError, match="another thread"):
             sim.step(bundle.hand_anchors(0))
     busy.join()
+
+
+# A short search: the test is about the call, not the plan's quality.
+SHORT_PLAN = {
+    "horizon": 6, "samples": 4, "iterations": 2, "gradient_iters": 2, "settle_frames": 0,
+}
+
+
+def test_planning_from_python_equals_dm_plan(tiny, tmp_path):
+    plant = tiny["root"] / "truth.json"
+    run_tool(
+        "dm-plan", tiny["model"], "--bundle", tiny["scene"], "--goal", "straighten",
+        "--plant", plant, "--horizon", "6", "--samples", "4", "--iterations", "2",
+        "--gradient-iters", "2", "--settle-frames", "0", "--no-video", "--out", tmp_path / "cli",
+    )
+    calls = []
+    result = dm.plan(
+        dm.load_model(tiny["model"]), dm.read_bundle(tiny["scene"]), "straighten",
+        out=tmp_path / "py", progress=lambda *call: calls.append(call), plant=plant,
+        **SHORT_PLAN,
+    )
+    cli = tmp_path / "cli"
+    for key, name in (("hands", "actions"), ("planned", "planned"), ("executed", "executed")):
+        reference = np.load(cli / f"{name}.npy")
+        assert result[key].dtype == reference.dtype, key
+        assert np.array_equal(result[key], reference), key
+        assert np.array_equal(np.load(tmp_path / "py" / f"{name}.npy"), reference), name
+    assert np.array_equal(result["goal"], np.load(cli / "goal.npy")[0])
+    record = json.loads((cli / "plan.json").read_text())
+    for key in ("planned", "executed", "start", "rollouts", "actions", "history", "plant"):
+        assert result["record"][key] == record[key], key
+    assert result["record"]["options"]["plant"] == str(plant)
+    assert result["frame_dt"] > 0
+    stages = {stage for stage, _, _ in calls}
+    assert {"MPPI", "gradient", "execute"} <= stages, stages
+    assert all(0 <= done <= total for _, done, total in calls)
+
+
+def test_planning_refuses_bad_options_and_passes_on_the_callbacks_error(tiny):
+    with pytest.raises(ValueError, match="--horizn"):
+        dm.plan(tiny["model"], tiny["scene"], "straighten", horizn=6)
+    with pytest.raises(ValueError, match="--samples"):
+        dm.plan(tiny["model"], tiny["scene"], "straighten", samples="many")
+    with pytest.raises(dm.BundleError, match="nowhere"):
+        dm.plan(tiny["model"], tiny["scene"].parent / "nowhere", "straighten", **SHORT_PLAN)
+    with pytest.raises(ValueError, match="directory"):
+        dm.plan(dm.Model.from_bundle(dm.read_bundle(tiny["scene"])), tiny["scene"], "straighten")
+
+    def interrupted(stage, done, total):
+        raise KeyError("stop here")
+
+    with pytest.raises(KeyError, match="stop here"):
+        dm.plan(tiny["model"], tiny["scene"], "straighten", progress=interrupted, **SHORT_PLAN)
 
 
 def test_gymnasium_env_passes_check_env(tiny):

@@ -1,5 +1,5 @@
 """DeformMaster from Python: scene bundles as NumPy arrays, fitted world
-models stepped frame by frame, renders and per-frame metrics.
+models stepped frame by frame, renders, per-frame metrics and planning.
 
     import deformmaster as dm
     bundle = dm.read_bundle("out/demo/scene")
@@ -33,6 +33,7 @@ from ._native import (
     read_bundle,
     split_frames,
 )
+from ._native import plan_from_args as _plan_from_args
 from ._native import write_bundle_arrays as _write_bundle_arrays
 
 __all__ = [
@@ -46,6 +47,7 @@ __all__ = [
     "__version__",
     "load_model",
     "look_at",
+    "plan",
     "read_bundle",
     "split_frames",
     "write_bundle",
@@ -105,3 +107,46 @@ def write_bundle(path, meta, tracks, particles, images, overwrite=False):
         **tracks,
         **particles,
     )
+
+
+def _path_of(value, attribute):
+    """A path argument given as a path or as the object loaded from it."""
+    found = getattr(value, attribute, value)
+    if found is None:
+        raise ValueError(f"{value!r} was not loaded from a directory; give its path")
+    return str(found)
+
+
+def plan(model, bundle, goal, out=None, progress=None, **options):
+    """Plans hand motions that bring the object to ``goal`` and carries them
+    out, as ``dm-plan`` does (docs/plan.md), in this process.
+
+    ``model`` is a dm-fit model directory (or a ``Model`` loaded from one),
+    ``bundle`` the scene's bundle (or a ``Bundle``); ``goal`` a named shape
+    (``"place"``, ``"straighten"``, ...), ``"frame:T"`` or a PLY file.
+    Every other dm-plan option is a keyword with ``_`` for ``-``
+    (``horizon=60``, ``plant="truth.json"``, ``device="cuda"``; a flag is
+    ``True``). ``out`` also writes dm-plan's files there (no video);
+    ``progress(stage, done, total)`` is called as the search goes.
+
+    Returns a dict: ``record`` (plan.json), ``hands`` (T, H, 3) anchors
+    carried out, ``planned`` and ``executed`` (T, N, 3) float32 particle
+    positions in the planning world and the plant, ``goal`` (G, 3) and
+    ``frame_dt`` seconds.
+    """
+    args = [
+        _path_of(model, "directory"),
+        "--bundle",
+        _path_of(bundle, "path"),
+        "--goal",
+        str(goal),
+        "--out",
+        str(out) if out is not None else "-",
+    ]
+    for key, value in options.items():
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            args.append(flag)
+        elif value is not False and value is not None:
+            args += [flag, str(value)]
+    return _plan_from_args(args, out=None if out is None else str(out), progress=progress)

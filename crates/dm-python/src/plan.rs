@@ -1,0 +1,119 @@
+//! `plan`: dm-plan's search and execution called in-process, its options
+//! given as dm-plan's own flags (the Python layer turns keywords into
+//! them), its outputs returned as arrays.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use clap::Parser;
+use dm_plan::PlanError;
+use dm_plan::run::{PlanOptions, RunResult, plan as run_plan, write_outputs};
+use numpy::IntoPyArray;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::bundle::to_json_object;
+use crate::{BundleError, DeformMasterError, ModelError, SimulationError, guarded};
+
+fn plan_error(error: PlanError) -> PyErr {
+    let message = error.to_string();
+    match error {
+        PlanError::Bundle(_) => BundleError::new_err(message),
+        PlanError::Model(e) => crate::model_error(e),
+        PlanError::Simulation(_) => SimulationError::new_err(message),
+        PlanError::InvalidOption { .. } => PyValueError::new_err(message),
+        PlanError::Play(_) | PlanError::Synth(_) => ModelError::new_err(message),
+        PlanError::File { .. } => DeformMasterError::new_err(message),
+    }
+}
+
+/// Parses dm-plan's command line `args` (without the program name); the
+/// error is clap's first line, naming the flag.
+fn parse_options(args: &[String]) -> PyResult<PlanOptions> {
+    let argv = std::iter::once("dm-plan".to_owned()).chain(args.iter().cloned());
+    PlanOptions::try_parse_from(argv).map_err(|e| {
+        let text = e.to_string();
+        let first = text
+            .lines()
+            .next()
+            .unwrap_or("")
+            .trim_start_matches("error: ");
+        PyValueError::new_err(format!("plan option: {first}"))
+    })
+}
+
+/// The arrays and record of a run, as dm-plan writes them to files.
+fn result_dict<'py>(py: Python<'py>, result: &RunResult) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("record", to_json_object(py, &result.record)?)?;
+    d.set_item(
+        "hands",
+        dm_plan::output::actions_array(result).into_pyarray(py),
+    )?;
+    d.set_item(
+        "planned",
+        dm_plan::output::frames_array(&result.planned).into_pyarray(py),
+    )?;
+    d.set_item(
+        "executed",
+        dm_plan::output::frames_array(&result.executed).into_pyarray(py),
+    )?;
+    let goal = dm_plan::output::frames_array(std::slice::from_ref(&result.goal.points));
+    d.set_item(
+        "goal",
+        goal.index_axis_move(ndarray::Axis(0), 0).into_pyarray(py),
+    )?;
+    d.set_item("frame_dt", result.frame_dt)?;
+    Ok(d)
+}
+
+/// Plans and carries out a hand motion as `dm-plan` does, from its
+/// command-line `args`; writes dm-plan's files (no video) into `out` when
+/// given. `progress(stage, done, total)` is called as the search goes;
+/// an exception it raises stops further calls and is raised at the end.
+#[pyfunction]
+#[pyo3(signature = (args, out = None, progress = None))]
+fn plan_from_args<'py>(
+    py: Python<'py>,
+    args: Vec<String>,
+    out: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    guarded("plan", || {
+        let mut options = parse_options(&args)?;
+        options.no_video = true;
+        options.out = out.clone().unwrap_or_default();
+        let failure: Mutex<Option<PyErr>> = Mutex::new(None);
+        let result = py.detach(|| {
+            run_plan(&options, &mut |stage, done, total| {
+                let Some(callback) = &progress else { return };
+                let Ok(mut failed) = failure.lock() else {
+                    return;
+                };
+                if failed.is_some() {
+                    return;
+                }
+                Python::attach(|py| {
+                    if let Err(e) = callback.call1(py, (stage, done, total)) {
+                        *failed = Some(e);
+                    }
+                });
+            })
+        });
+        if let Some(e) = failure.into_inner().ok().flatten() {
+            return Err(e);
+        }
+        let result = result.map_err(plan_error)?;
+        if let Some(out) = &out {
+            py.detach(|| write_outputs(out, &result))
+                .map_err(plan_error)?;
+        }
+        result_dict(py, &result)
+    })
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(plan_from_args, m)?)?;
+    Ok(())
+}

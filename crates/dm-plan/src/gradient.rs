@@ -7,6 +7,8 @@
 //! each frame's correction is differentiated too, back to the frame starts
 //! its network saw. Adam on the knots.
 
+use std::ops::ControlFlow;
+
 use dm_model::device::DeviceReal;
 use dm_mpm::Real;
 use dm_mpm::g2p_backward::ParticleGrads;
@@ -14,10 +16,10 @@ use dm_mpm::real::Vec3;
 use dm_mpm::state::Particles;
 use serde::{Deserialize, Serialize};
 
-use crate::PlanError;
 use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, TerminalCost, plan_penalty};
 use crate::world::PlanningModel;
+use crate::{PlanError, keep_going};
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GradientOptions {
@@ -131,7 +133,7 @@ pub fn refine(
     weights: &CostWeights,
     workspace: &Workspace,
     options: &GradientOptions,
-    progress: &mut dyn FnMut(usize, f64),
+    progress: &mut dyn FnMut(usize, f64) -> ControlFlow<()>,
 ) -> Result<Refined, PlanError> {
     let (beta1, beta2, epsilon) = (0.9, 0.999, 1e-12);
     let mut params = plan.params();
@@ -153,7 +155,7 @@ pub fn refine(
         if value < best.0 {
             best = (value, params.clone());
         }
-        progress(iteration, best.0);
+        keep_going(progress(iteration, best.0), "gradient")?;
         if iteration == options.iterations {
             break;
         }

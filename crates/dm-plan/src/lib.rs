@@ -40,6 +40,9 @@ pub enum PlanError {
     InvalidOption { option: String, problem: String },
     #[error("{path}: {problem}")]
     File { path: PathBuf, problem: String },
+    /// The caller's progress callback asked to stop.
+    #[error("stopped by the caller during {stage}")]
+    Stopped { stage: String },
 }
 
 impl PlanError {
@@ -51,6 +54,16 @@ impl PlanError {
             PlanError::Model(e) => e.simulation().is_some(),
             _ => false,
         }
+    }
+}
+
+/// `Stopped` in `stage` where the caller's progress callback broke.
+pub(crate) fn keep_going(flow: std::ops::ControlFlow<()>, stage: &str) -> Result<(), PlanError> {
+    match flow {
+        std::ops::ControlFlow::Continue(()) => Ok(()),
+        std::ops::ControlFlow::Break(()) => Err(PlanError::Stopped {
+            stage: stage.into(),
+        }),
     }
 }
 

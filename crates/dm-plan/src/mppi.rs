@@ -3,13 +3,15 @@
 //! moves the mean to their exponentially cost-weighted average. The
 //! defaults are PhysTwin's planner's (20 samples, 10 iterations).
 
+use std::ops::ControlFlow;
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::PlanError;
+use crate::{PlanError, keep_going};
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MppiOptions {
@@ -47,7 +49,8 @@ pub struct SearchResult {
 }
 
 /// Minimises `cost` from `start`. `project` keeps a sample feasible (e.g.
-/// inside the workspace); `progress` is called with (iteration, best cost).
+/// inside the workspace); `progress` is called with (iteration, best cost)
+/// and stops the search with [`PlanError::Stopped`] when it breaks.
 /// An iteration's samples are drawn in order, then costed in parallel:
 /// the result does not depend on the thread count.
 pub fn mppi(
@@ -55,7 +58,7 @@ pub fn mppi(
     start: &[f64],
     project: &dyn Fn(&mut Vec<f64>),
     options: &MppiOptions,
-    progress: &mut dyn FnMut(usize, f64),
+    progress: &mut dyn FnMut(usize, f64) -> ControlFlow<()>,
 ) -> Result<SearchResult, PlanError> {
     let noise = Normal::new(0.0, options.noise_m).map_err(|e| PlanError::InvalidOption {
         option: "--mppi-noise".into(),
@@ -101,7 +104,7 @@ pub fn mppi(
         if !lowest.is_finite() {
             // Every sample diverged: keep the mean, try again.
             history.push(best_cost);
-            progress(iteration + 1, best_cost);
+            keep_going(progress(iteration + 1, best_cost), "MPPI")?;
             continue;
         }
         let mut sorted = costs.clone();
@@ -122,7 +125,7 @@ pub fn mppi(
         }
         project(&mut mean);
         history.push(best_cost);
-        progress(iteration + 1, best_cost);
+        keep_going(progress(iteration + 1, best_cost), "MPPI")?;
     }
     Ok(SearchResult {
         best,
@@ -148,7 +151,10 @@ mod tests {
                 iterations: 30,
                 ..MppiOptions::default()
             };
-            mppi(&cost, &[0.0; 4], &|_| {}, &options, &mut |_, _| {}).expect("search")
+            mppi(&cost, &[0.0; 4], &|_| {}, &options, &mut |_, _| {
+                ControlFlow::Continue(())
+            })
+            .expect("search")
         };
         let result = run(1);
         assert!(result.best_cost < 1e-4, "best cost {}", result.best_cost);
@@ -175,7 +181,11 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .expect("thread pool")
-                .install(|| mppi(&cost, &[0.1; 6], &|_| {}, &options, &mut |_, _| {}))
+                .install(|| {
+                    mppi(&cost, &[0.1; 6], &|_| {}, &options, &mut |_, _| {
+                        ControlFlow::Continue(())
+                    })
+                })
                 .expect("search")
         };
         let one = on(1);

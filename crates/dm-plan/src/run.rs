@@ -3,6 +3,7 @@
 //! or re-planned from observations, and everything written to the output
 //! directory.
 
+use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Instant;
 
@@ -24,7 +25,7 @@ pub use crate::output::write_outputs;
 use crate::plant::Plant;
 use crate::search::{Search, shifted};
 use crate::world::{PlanningModel, PlanningWorld, rollout};
-use crate::{PlanError, invalid};
+use crate::{PlanError, invalid, keep_going};
 
 /// `plan.json` (keys documented in docs/plan.md).
 #[derive(Clone, Debug, Serialize)]
@@ -67,8 +68,9 @@ pub struct PlanningWorldRecord {
     pub grasp_radius_m: f64,
 }
 
-/// Progress: (stage, done, total).
-pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+/// Progress: (stage, done, total); `Break` stops the run with
+/// [`PlanError::Stopped`].
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize) -> ControlFlow<()>;
 
 /// The scene's up axis and floor height.
 fn up_and_floor(bundle: &Bundle) -> ([f64; 3], f64) {
@@ -296,14 +298,17 @@ fn start_from_clip(
         plant.replay(t)?;
         let grasp = vec![true; clip_hands[t].len()];
         tracker.step_frame(&clip_hands[t], &clip_hands[t + 1], &grasp)?;
-        progress("start", t + 1, total);
+        keep_going(progress("start", t + 1, total), "start")?;
     }
     plant.release()?;
     tracker.release_grasps()?;
     for s in 0..options.settle_frames {
         plant.step_free()?;
         tracker.step_frame_free()?;
-        progress("start", options.start_frame + s + 1, total);
+        keep_going(
+            progress("start", options.start_frame + s + 1, total),
+            "start",
+        )?;
     }
     observe(plant, tracker, observed_of, noise, rng)
 }
@@ -546,7 +551,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             tracker.step_frame(&from, &to, &vec![t - offset + s == 0; from.len()])?;
             executed.push(plant.positions()?);
             hands.push(to);
-            progress("execute", t + s + 1, options.horizon);
+            keep_going(progress("execute", t + s + 1, options.horizon), "execute")?;
         }
         t += segment;
         if options.replan_every > 0 && t < options.horizon {

@@ -2,6 +2,8 @@
 //! simulator against finite differences, and a search that brings the
 //! object closer to its goal in the model and in the truth world.
 
+use std::ops::ControlFlow;
+
 use dm_bundle::Bundle;
 use dm_model::{ModelOptions, ResidualKind, WorldModel};
 use dm_plan::actions::ActionPlan;
@@ -219,7 +221,8 @@ fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
     )
     .expect("scene");
     let options = small_plan(dir.path(), &scene, &truth, "place");
-    let result = dm_plan::run::plan(&options, &mut |_, _, _| {}).expect("plan");
+    let result =
+        dm_plan::run::plan(&options, &mut |_, _, _| ControlFlow::Continue(())).expect("plan");
     let r = &result.record;
     assert_eq!(r.replans, 1);
     assert_eq!(result.executed.len(), 13);
@@ -236,8 +239,32 @@ fn a_planned_motion_brings_the_object_closer_to_its_goal_in_the_truth_world() {
         r.start.final_chamfer_m
     );
     // Seeded: the same options give the same plan and the same execution.
-    let again = dm_plan::run::plan(&options, &mut |_, _, _| {}).expect("plan");
+    let again =
+        dm_plan::run::plan(&options, &mut |_, _, _| ControlFlow::Continue(())).expect("plan");
     assert_eq!(again.executed, result.executed);
+    // A callback that breaks stops the run where it is.
+    let mut stages = Vec::new();
+    let stopped = dm_plan::run::plan(&options, &mut |stage, _, _| {
+        stages.push(stage.to_owned());
+        if stage == "MPPI" {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    match stopped {
+        Err(dm_plan::PlanError::Stopped { stage }) => assert_eq!(stage, "MPPI"),
+        other => panic!(
+            "the run did not stop: {:?}",
+            other.map(|r| r.record.rollouts)
+        ),
+    }
+    assert_eq!(stages.last().map(String::as_str), Some("MPPI"));
+    assert_eq!(
+        stages.iter().filter(|s| *s == "MPPI").count(),
+        1,
+        "called after the stop"
+    );
 }
 
 /// From a later start the plant and the planning world first play the
@@ -260,8 +287,12 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
         replan_every: 0,
         ..small_plan(dir.path(), &scene, &truth, "move")
     };
-    let at_rest = dm_plan::run::plan(&options(0), &mut |_, _, _| {}).expect("plan");
-    let later = dm_plan::run::plan(&options(config.frames - 1), &mut |_, _, _| {}).expect("plan");
+    let at_rest =
+        dm_plan::run::plan(&options(0), &mut |_, _, _| ControlFlow::Continue(())).expect("plan");
+    let later = dm_plan::run::plan(&options(config.frames - 1), &mut |_, _, _| {
+        ControlFlow::Continue(())
+    })
+    .expect("plan");
     let centre = |points: &[[f64; 3]]| -> [f64; 3] {
         let n = points.len() as f64;
         std::array::from_fn(|a| points.iter().map(|p| p[a]).sum::<f64>() / n)

@@ -73,6 +73,38 @@ pub(crate) fn guarded<T>(what: &str, body: impl FnOnce() -> PyResult<T>) -> PyRe
     }
 }
 
+/// Ctrl-C during a long call that released the GIL: Python's signal
+/// handlers run only on its main thread and only with the GIL, so the call
+/// takes the GIL back to run them, at most every [`Self::EVERY`] and only
+/// on the main thread (elsewhere it would only wait for the GIL).
+pub(crate) struct Interrupts {
+    main_thread: bool,
+    last: std::time::Instant,
+}
+
+impl Interrupts {
+    const EVERY: std::time::Duration = std::time::Duration::from_millis(100);
+
+    pub(crate) fn new(py: Python<'_>) -> PyResult<Self> {
+        let threading = py.import("threading")?;
+        let current = threading.call_method0("current_thread")?;
+        Ok(Self {
+            main_thread: current.is(&threading.call_method0("main_thread")?),
+            last: std::time::Instant::now(),
+        })
+    }
+
+    /// Runs the signal handlers when due; a `KeyboardInterrupt` comes back
+    /// as the error.
+    pub(crate) fn check(&mut self) -> PyResult<()> {
+        if !self.main_thread || self.last.elapsed() < Self::EVERY {
+            return Ok(());
+        }
+        self.last = std::time::Instant::now();
+        Python::attach(|py| py.check_signals())
+    }
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();

@@ -22,7 +22,7 @@ use pyo3::types::PyDict;
 use crate::arrays::{frames_from_array, frames_to_array, points_from_array, points_to_array};
 use crate::bundle::PyBundle;
 use crate::render::{CameraArg, render_view};
-use crate::{DeformMasterError, ModelError, SimulationError, guarded, model_error};
+use crate::{DeformMasterError, Interrupts, ModelError, SimulationError, guarded, model_error};
 
 /// A world model: fitted (`load_model`) or untrained (`Model.from_bundle`).
 #[pyclass(name = "Model", module = "deformmaster", frozen)]
@@ -409,7 +409,7 @@ impl PySimulation {
 
     /// Steps one frame per row of `hands` ((K, H, 3)) and returns the
     /// particle positions after each, (K, N, 3) float32; the GIL is
-    /// released for the whole call.
+    /// released between frames, and Ctrl-C stops the call there.
     fn step_many<'py>(
         &self,
         py: Python<'py>,
@@ -419,9 +419,12 @@ impl PySimulation {
             let path = frames_from_array(&hands, "hands")?;
             let mut state = self.lock()?;
             let state = &mut *state;
+            let mut interrupts = Interrupts::new(py)?;
             let frames = py.detach(|| -> PyResult<Vec<Vec<[f32; 3]>>> {
                 let mut out = Vec::with_capacity(path.len());
                 for to in &path {
+                    // Ctrl-C stops between frames, the state at the last one.
+                    interrupts.check()?;
                     state.step(to, None)?;
                     out.push(state.simulation.positions_f32().map_err(model_error)?);
                 }

@@ -2,6 +2,7 @@
 //! given as dm-plan's own flags (the Python layer turns keywords into
 //! them), its outputs returned as arrays.
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Mutex;
 
@@ -14,7 +15,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::bundle::to_json_object;
-use crate::{BundleError, DeformMasterError, ModelError, SimulationError, guarded};
+use crate::{BundleError, DeformMasterError, Interrupts, ModelError, SimulationError, guarded};
 
 fn plan_error(error: PlanError) -> PyErr {
     let message = error.to_string();
@@ -24,7 +25,7 @@ fn plan_error(error: PlanError) -> PyErr {
         PlanError::Simulation(_) => SimulationError::new_err(message),
         PlanError::InvalidOption { .. } => PyValueError::new_err(message),
         PlanError::Play(_) | PlanError::Synth(_) => ModelError::new_err(message),
-        PlanError::File { .. } => DeformMasterError::new_err(message),
+        PlanError::File { .. } | PlanError::Stopped { .. } => DeformMasterError::new_err(message),
     }
 }
 
@@ -70,8 +71,8 @@ fn result_dict<'py>(py: Python<'py>, result: &RunResult) -> PyResult<Bound<'py, 
 
 /// Plans and carries out a hand motion as `dm-plan` does, from its
 /// command-line `args`; writes dm-plan's files (no video) into `out` when
-/// given. `progress(stage, done, total)` is called as the search goes;
-/// an exception it raises stops further calls and is raised at the end.
+/// given. `progress(stage, done, total)` is called as the run goes; an
+/// exception it raises, or Ctrl-C, stops the run and is raised.
 #[pyfunction]
 #[pyo3(signature = (args, out = None, progress = None))]
 fn plan_from_args<'py>(
@@ -84,21 +85,28 @@ fn plan_from_args<'py>(
         let mut options = parse_options(&args)?;
         options.no_video = true;
         options.out = out.clone().unwrap_or_default();
+        // What stopped the run: Ctrl-C (checked at every progress step)
+        // or the callback's exception.
         let failure: Mutex<Option<PyErr>> = Mutex::new(None);
+        let mut interrupts = Interrupts::new(py)?;
         let result = py.detach(|| {
             run_plan(&options, &mut |stage, done, total| {
-                let Some(callback) = &progress else { return };
-                let Ok(mut failed) = failure.lock() else {
-                    return;
+                let outcome = match &progress {
+                    Some(callback) => Python::attach(|py| -> PyResult<()> {
+                        py.check_signals()?;
+                        callback.call1(py, (stage, done, total))?;
+                        Ok(())
+                    }),
+                    None => interrupts.check(),
                 };
-                if failed.is_some() {
-                    return;
-                }
-                Python::attach(|py| {
-                    if let Err(e) = callback.call1(py, (stage, done, total)) {
+                match (outcome, failure.lock()) {
+                    (Ok(()), _) => ControlFlow::Continue(()),
+                    (Err(e), Ok(mut failed)) => {
                         *failed = Some(e);
+                        ControlFlow::Break(())
                     }
-                });
+                    (Err(_), Err(_)) => ControlFlow::Break(()),
+                }
             })
         });
         if let Some(e) = failure.into_inner().ok().flatten() {

@@ -7,6 +7,7 @@ import json
 import os
 import pathlib
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -332,6 +333,37 @@ def test_planning_refuses_bad_options_and_passes_on_the_callbacks_error(tiny):
 
     with pytest.raises(KeyError, match="stop here"):
         dm.plan(tiny["model"], tiny["scene"], "straighten", progress=interrupted, **SHORT_PLAN)
+
+
+def interrupt_soon():
+    """Ctrl-C to this process in 0.1 s, as a terminal or notebook sends it."""
+    timer = threading.Timer(0.1, os.kill, args=(os.getpid(), signal.SIGINT))
+    timer.start()
+    return timer
+
+
+def test_ctrl_c_stops_long_calls(tiny, tmp_path):
+    bundle = dm.read_bundle(tiny["scene"])
+    sim = dm.load_model(tiny["model"]).simulation(bundle.hand_anchors(0))
+    # Seconds of stepping even on a fast machine; the interrupt comes first.
+    path = np.concatenate([hand_path(bundle)] * 50)
+    timer = interrupt_soon()
+    with pytest.raises(KeyboardInterrupt):
+        sim.step_many(path)
+    timer.join()
+    stopped_at = sim.frame
+    assert stopped_at < len(path)
+    sim.step(path[stopped_at])
+    assert sim.frame == stopped_at + 1
+    timer = interrupt_soon()
+    with pytest.raises(KeyboardInterrupt):
+        dm.plan(
+            tiny["model"], tiny["scene"], "straighten", out=tmp_path / "plan",
+            **dict(SHORT_PLAN, iterations=500),
+        )
+    timer.join()
+    # Stopped inside the search: nothing was written.
+    assert not (tmp_path / "plan").exists()
 
 
 def test_gymnasium_env_passes_check_env(tiny):

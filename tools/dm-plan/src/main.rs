@@ -32,6 +32,7 @@ fn main() -> Result<()> {
                 clock.elapsed().as_secs_f64()
             );
         }
+        std::ops::ControlFlow::Continue(())
     })
     .context("planning (nothing was written)")?;
     bar.finish_and_clear();

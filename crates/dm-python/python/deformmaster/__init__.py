@@ -127,7 +127,8 @@ def plan(model, bundle, goal, out=None, progress=None, **options):
     Every other dm-plan option is a keyword with ``_`` for ``-``
     (``horizon=60``, ``plant="truth.json"``, ``device="cuda"``; a flag is
     ``True``). ``out`` also writes dm-plan's files there (no video);
-    ``progress(stage, done, total)`` is called as the search goes.
+    ``progress(stage, done, total)`` is called as the run goes; an
+    exception it raises, or Ctrl-C, stops the run and is raised.
 
     Returns a dict: ``record`` (plan.json), ``hands`` (T, H, 3) anchors
     carried out, ``planned`` and ``executed`` (T, N, 3) float32 particle

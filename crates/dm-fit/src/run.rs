@@ -515,9 +515,24 @@ pub fn run_fit(
     stop_after: Option<usize>,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FitOutcome, FitError> {
+    run_fit_until(bundle, options, out, resume, stop_after, None, progress)
+}
+
+/// [`run_fit`] that also pauses, checkpointed, after the step during which
+/// `cancel` is set (an interrupt from the caller's thread or `progress`).
+pub fn run_fit_until(
+    bundle: &Bundle,
+    options: &FitOptions,
+    out: &Path,
+    resume: bool,
+    stop_after: Option<usize>,
+    cancel: Option<&AtomicBool>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FitOutcome, FitError> {
     let start = StagesStart {
         resume,
         stop_after,
+        cancel,
         ..StagesStart::default()
     };
     fit_stages(bundle, options, out, start, progress)

@@ -1,7 +1,7 @@
 //! `deformmaster._native`: the Rust side of the `deformmaster` Python
 //! package (docs/python.md). Scene bundles as NumPy arrays, fitted world
 //! models stepped frame by frame with the GIL released, renders with the
-//! fitted splats, the per-frame metrics, dm-plan's planner. The Python layer
+//! fitted splats, the per-frame metrics, dm-fit's and dm-plan's runs. The Python layer
 //! (`python/deformmaster/`) coerces array types and adds the Gymnasium
 //! environment; all physics runs here.
 //!
@@ -11,6 +11,7 @@
 
 mod arrays;
 mod bundle;
+mod fit;
 mod model;
 mod plan;
 mod render;
@@ -105,6 +106,64 @@ impl Interrupts {
     }
 }
 
+/// A long call's Python side while it runs without the GIL: the caller's
+/// progress callback, and Ctrl-C. The first exception either raises stops
+/// the call and is raised when it returns ([`Self::finish`]).
+pub(crate) struct Watcher {
+    callback: Option<Py<PyAny>>,
+    interrupts: Interrupts,
+    failure: Option<PyErr>,
+}
+
+impl Watcher {
+    pub(crate) fn new(py: Python<'_>, callback: Option<Py<PyAny>>) -> PyResult<Self> {
+        Ok(Self {
+            callback,
+            interrupts: Interrupts::new(py)?,
+            failure: None,
+        })
+    }
+
+    /// Runs `call` on the callback, if there is one, with Python's signal
+    /// handlers; false once either has raised.
+    pub(crate) fn keep_going(
+        &mut self,
+        call: impl FnOnce(Python<'_>, &Py<PyAny>) -> PyResult<()>,
+    ) -> bool {
+        if self.failure.is_some() {
+            return false;
+        }
+        let outcome = match &self.callback {
+            Some(callback) => Python::attach(|py| {
+                py.check_signals()?;
+                call(py, callback)
+            }),
+            None => self.interrupts.check(),
+        };
+        outcome.map_err(|e| self.failure = Some(e)).is_ok()
+    }
+
+    /// The exception that stopped the call, if one did.
+    pub(crate) fn finish(self) -> PyResult<()> {
+        self.failure.map_or(Ok(()), Err)
+    }
+}
+
+/// A tool's options parsed from its command-line flags `args` (without
+/// the program's name); the error is clap's first line, naming the flag.
+pub(crate) fn parse_flags<T: clap::Parser>(tool: &str, args: &[String]) -> PyResult<T> {
+    let argv = std::iter::once(tool.to_owned()).chain(args.iter().cloned());
+    T::try_parse_from(argv).map_err(|e| {
+        let text = e.to_string();
+        let first = text
+            .lines()
+            .next()
+            .unwrap_or("")
+            .trim_start_matches("error: ");
+        pyo3::exceptions::PyValueError::new_err(format!("{tool} option: {first}"))
+    })
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -114,6 +173,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
     bundle::register(m)?;
+    fit::register(m)?;
     model::register(m)?;
     plan::register(m)?;
     render::register(m)?;

@@ -4,9 +4,7 @@
 
 use std::ops::ControlFlow;
 use std::path::PathBuf;
-use std::sync::Mutex;
 
-use clap::Parser;
 use dm_plan::PlanError;
 use dm_plan::run::{PlanOptions, RunResult, plan as run_plan, write_outputs};
 use numpy::IntoPyArray;
@@ -15,7 +13,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::bundle::to_json_object;
-use crate::{BundleError, DeformMasterError, Interrupts, ModelError, SimulationError, guarded};
+use crate::{
+    BundleError, DeformMasterError, ModelError, SimulationError, Watcher, guarded, parse_flags,
+};
 
 fn plan_error(error: PlanError) -> PyErr {
     let message = error.to_string();
@@ -27,21 +27,6 @@ fn plan_error(error: PlanError) -> PyErr {
         PlanError::Play(_) | PlanError::Synth(_) => ModelError::new_err(message),
         PlanError::File { .. } | PlanError::Stopped { .. } => DeformMasterError::new_err(message),
     }
-}
-
-/// Parses dm-plan's command line `args` (without the program name); the
-/// error is clap's first line, naming the flag.
-fn parse_options(args: &[String]) -> PyResult<PlanOptions> {
-    let argv = std::iter::once("dm-plan".to_owned()).chain(args.iter().cloned());
-    PlanOptions::try_parse_from(argv).map_err(|e| {
-        let text = e.to_string();
-        let first = text
-            .lines()
-            .next()
-            .unwrap_or("")
-            .trim_start_matches("error: ");
-        PyValueError::new_err(format!("plan option: {first}"))
-    })
 }
 
 /// The arrays and record of a run, as dm-plan writes them to files.
@@ -82,36 +67,22 @@ fn plan_from_args<'py>(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded("plan", || {
-        let mut options = parse_options(&args)?;
+        let mut options: PlanOptions = parse_flags("dm-plan", &args)?;
         options.no_video = true;
         options.out = out.clone().unwrap_or_default();
-        // What stopped the run: Ctrl-C (checked at every progress step)
-        // or the callback's exception.
-        let failure: Mutex<Option<PyErr>> = Mutex::new(None);
-        let mut interrupts = Interrupts::new(py)?;
+        let mut watcher = Watcher::new(py, progress)?;
         let result = py.detach(|| {
             run_plan(&options, &mut |stage, done, total| {
-                let outcome = match &progress {
-                    Some(callback) => Python::attach(|py| -> PyResult<()> {
-                        py.check_signals()?;
-                        callback.call1(py, (stage, done, total))?;
-                        Ok(())
-                    }),
-                    None => interrupts.check(),
-                };
-                match (outcome, failure.lock()) {
-                    (Ok(()), _) => ControlFlow::Continue(()),
-                    (Err(e), Ok(mut failed)) => {
-                        *failed = Some(e);
-                        ControlFlow::Break(())
-                    }
-                    (Err(_), Err(_)) => ControlFlow::Break(()),
+                let going = watcher
+                    .keep_going(|py, callback| callback.call1(py, (stage, done, total)).map(drop));
+                if going {
+                    ControlFlow::Continue(())
+                } else {
+                    ControlFlow::Break(())
                 }
             })
         });
-        if let Some(e) = failure.into_inner().ok().flatten() {
-            return Err(e);
-        }
+        watcher.finish()?;
         let result = result.map_err(plan_error)?;
         if let Some(out) = &out {
             py.detach(|| write_outputs(out, &result))

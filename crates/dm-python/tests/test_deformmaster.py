@@ -1,7 +1,8 @@
 """The deformmaster package against the Rust tools: bundles round-trip
 through the Rust reader, stepping from Python equals dm-sim's rollout
-bitwise, renders, material control, errors, the GIL, planning as dm-plan
-plans, the Gymnasium env, the example script, and `device="cuda"` under the driver's emulator."""
+bitwise, renders, material control, errors, the GIL, Ctrl-C, fitting as
+dm-fit fits and planning as dm-plan plans, the Gymnasium env, the example
+script, and `device="cuda"` under the driver's emulator."""
 
 import json
 import os
@@ -282,6 +283,48 @@ def test_the_gil_is_released_while_stepping(tiny):
     busy.join()
 
 
+# The fixture's dm-fit options (conftest.py), as keywords.
+TINY_FIT = {
+    "iters": 2, "stage2_iters": 1, "gain_evals": 4, "patches": 8, "residual": "none",
+    "rgb_iters": 1,
+}
+
+
+def test_fitting_from_python_equals_dm_fit_and_resumes(tiny, tmp_path):
+    messages = []
+    report = dm.fit(dm.read_bundle(tiny["scene"]), tmp_path / "model", progress=messages.append, **TINY_FIT)
+    reference = (tiny["model"] / "model.json").read_bytes()
+    assert (tmp_path / "model" / "model.json").read_bytes() == reference
+    assert report == json.loads((tmp_path / "model" / "fit_report.json").read_text())
+    assert report["material"]["E_median_pa"] > 0
+    assert any(m.startswith("Material1") for m in messages), messages[:5]
+    # Paused after two steps, then resumed: the same model.
+    assert dm.fit(tiny["scene"], tmp_path / "paused", stop_after=2, **TINY_FIT) is None
+    assert not (tmp_path / "paused" / "model.json").exists()
+    dm.fit(tiny["scene"], tmp_path / "paused", resume=True, **TINY_FIT)
+    assert (tmp_path / "paused" / "model.json").read_bytes() == reference
+
+
+def test_fitting_refuses_bad_options_and_pauses_on_the_callbacks_error(tiny, tmp_path):
+    with pytest.raises(ValueError, match="--iter"):
+        dm.fit(tiny["scene"], tmp_path / "a", iter=2)
+    with pytest.raises(ValueError, match="--residual"):
+        dm.fit(tiny["scene"], tmp_path / "b", residual="quadratic")
+    with pytest.raises(dm.BundleError, match="nowhere"):
+        dm.fit(tmp_path / "nowhere", tmp_path / "c", **TINY_FIT)
+
+    def impatient(message):
+        raise KeyError("enough")
+
+    with pytest.raises(KeyError, match="enough"):
+        dm.fit(tiny["scene"], tmp_path / "d", progress=impatient, **TINY_FIT)
+    # Paused after its first step, checkpointed, and resumable.
+    assert (tmp_path / "d" / "checkpoint.json").is_file()
+    assert not (tmp_path / "d" / "model.json").exists()
+    dm.fit(tiny["scene"], tmp_path / "d", resume=True, **TINY_FIT)
+    assert (tmp_path / "d" / "model.json").read_bytes() == (tiny["model"] / "model.json").read_bytes()
+
+
 # A short search: the test is about the call, not the plan's quality.
 SHORT_PLAN = {
     "horizon": 6, "samples": 4, "iterations": 2, "gradient_iters": 2, "settle_frames": 0,
@@ -355,6 +398,13 @@ def test_ctrl_c_stops_long_calls(tiny, tmp_path):
     assert stopped_at < len(path)
     sim.step(path[stopped_at])
     assert sim.frame == stopped_at + 1
+    timer = interrupt_soon()
+    with pytest.raises(KeyboardInterrupt):
+        dm.fit(tiny["scene"], tmp_path / "fit", **dict(TINY_FIT, iters=5000))
+    timer.join()
+    # Paused at a step's end: checkpointed, no model yet.
+    assert (tmp_path / "fit" / "checkpoint.json").is_file()
+    assert not (tmp_path / "fit" / "model.json").exists()
     timer = interrupt_soon()
     with pytest.raises(KeyboardInterrupt):
         dm.plan(

@@ -1,5 +1,6 @@
 """DeformMaster from Python: scene bundles as NumPy arrays, fitted world
-models stepped frame by frame, renders, per-frame metrics and planning.
+models fitted and stepped frame by frame, renders, per-frame metrics and
+planning.
 
     import deformmaster as dm
     bundle = dm.read_bundle("out/demo/scene")
@@ -33,6 +34,7 @@ from ._native import (
     read_bundle,
     split_frames,
 )
+from ._native import fit_from_args as _fit_from_args
 from ._native import plan_from_args as _plan_from_args
 from ._native import write_bundle_arrays as _write_bundle_arrays
 
@@ -45,6 +47,7 @@ __all__ = [
     "Simulation",
     "SimulationError",
     "__version__",
+    "fit",
     "load_model",
     "look_at",
     "plan",
@@ -144,10 +147,42 @@ def plan(model, bundle, goal, out=None, progress=None, **options):
         "--out",
         str(out) if out is not None else "-",
     ]
+    args += _flags(options)
+    return _plan_from_args(args, out=None if out is None else str(out), progress=progress)
+
+
+def fit(bundle, out, resume=False, stop_after=None, progress=None, **options):
+    """Fits a world model to a scene as ``dm-fit`` does (docs/fit.md), in
+    this process: writes the model directory ``out``, checkpointed after
+    every step, and returns fit_report.json as a dict
+    (``load_model(out)`` loads the model).
+
+    ``bundle`` is the scene's bundle (a path or a ``Bundle``). Every dm-fit
+    option is a keyword with ``_`` for ``-`` (``iters=3``,
+    ``residual="none"``, ``device="cuda"``; a flag is ``True``).
+    ``progress(message)`` gets dm-fit's progress lines. Ctrl-C, or an
+    exception ``progress`` raises, pauses the fit after the step it is in
+    and is raised; ``resume=True`` continues from the checkpoint.
+    ``stop_after=n`` pauses after n steps and returns None.
+    """
+    return _fit_from_args(
+        _path_of(bundle, "path"),
+        str(out),
+        _flags(options),
+        resume=resume,
+        stop_after=stop_after,
+        progress=progress,
+    )
+
+
+def _flags(options):
+    """Keyword options as a tool's flags: ``_`` for ``-``, ``True`` a bare
+    flag, ``False`` and ``None`` left out."""
+    args = []
     for key, value in options.items():
         flag = "--" + key.replace("_", "-")
         if value is True:
             args.append(flag)
         elif value is not False and value is not None:
             args += [flag, str(value)]
-    return _plan_from_args(args, out=None if out is None else str(out), progress=progress)
+    return args

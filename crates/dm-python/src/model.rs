@@ -438,6 +438,12 @@ impl PySimulation {
         })
     }
 
+    /// Where the MPM world runs: "cpu" or "cuda".
+    #[getter]
+    fn device(&self) -> PyResult<String> {
+        Ok(self.lock()?.simulation.device().to_string())
+    }
+
     /// Frames stepped since the first frame.
     #[getter]
     fn frame(&self) -> PyResult<usize> {

@@ -219,7 +219,7 @@ EMULATOR = pathlib.Path(
 )
 
 
-def test_device_cuda_steps_and_rolls_out_as_the_cpu_under_the_emulator(tiny, tmp_path):
+def test_device_cuda_steps_rolls_out_and_runs_the_env_as_the_cpu_under_the_emulator(tiny, tmp_path):
     if not EMULATOR.is_file():
         raise FileNotFoundError(
             f"{EMULATOR} is missing: cargo test --workspace builds it, or set DM_CUDA_EMULATOR"
@@ -232,11 +232,21 @@ scene, model_dir, out = sys.argv[1:]
 bundle = dm.read_bundle(scene)
 model = dm.load_model(model_dir)
 sims = {d: model.simulation(bundle.hand_anchors(0), device=d) for d in ("cpu", "cuda")}
+assert [sim.device for sim in sims.values()] == ["cpu", "cuda"]
 for t in range(1, 4):
     for sim in sims.values():
         sim.step(bundle.hand_anchors(t))
+from deformmaster.env import TwinEnv
+envs = {d: TwinEnv(model, bundle, max_steps=3, device=d) for d in ("cpu", "cuda")}
+seen = {}
+for d, env in envs.items():
+    env.reset(seed=1)
+    assert env._sim.device == d, (env._sim.device, d)
+    for _ in range(3):
+        seen[d], *_ = env.step(np.full(env.action_space.shape, 0.004, np.float32))
 np.savez(out, cpu=sims["cpu"].positions, gpu=sims["cuda"].positions,
-         rollout_cpu=model.rollout(bundle, frames=4), rollout_gpu=model.rollout(bundle, frames=4, device="cuda"))
+         rollout_cpu=model.rollout(bundle, frames=4), rollout_gpu=model.rollout(bundle, frames=4, device="cuda"),
+         env_cpu=seen["cpu"], env_gpu=seen["cuda"])
 """
     out = tmp_path / "positions.npz"
     # The driver is chosen when the process starts: the GPU runs in a child.
@@ -248,7 +258,7 @@ np.savez(out, cpu=sims["cpu"].positions, gpu=sims["cuda"].positions,
     assert done.returncode == 0, done.stderr
     saved = np.load(out)
     assert saved["rollout_gpu"].shape == saved["rollout_cpu"].shape
-    for cpu, gpu in (("cpu", "gpu"), ("rollout_cpu", "rollout_gpu")):
+    for cpu, gpu in (("cpu", "gpu"), ("rollout_cpu", "rollout_gpu"), ("env_cpu", "env_gpu")):
         difference = np.abs(saved[cpu].astype(np.float64) - saved[gpu]).max()
         assert difference <= GPU_POSITION_TOLERANCE_M, (cpu, difference)
 

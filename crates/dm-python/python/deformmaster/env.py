@@ -43,6 +43,7 @@ class TwinEnv(gym.Env):
         image_observation=False,
         camera=0,
         render_mode=None,
+        device="cpu",
     ):
         """``model``: a Model or a model directory; ``bundle``: a Bundle or
         a bundle directory (its first frame's hands, tracked points and
@@ -50,6 +51,7 @@ class TwinEnv(gym.Env):
         points visible at the bundle's last frame. ``max_steps``: frames
         per episode (default: the clip's length). ``camera``: the bundle
         camera index (or a camera dict) of renders and image observations.
+        ``device``: where the simulation runs, as in ``Model.simulation``.
         """
         super().__init__()
         self.model = model if isinstance(model, Model) else load_model(model)
@@ -57,6 +59,7 @@ class TwinEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r}: use 'rgb_array' or None")
         self.render_mode = render_mode
+        self.device = device
         tracks = self.bundle.tracks
         if goal is None:
             last = self.bundle.frame_count - 1
@@ -111,7 +114,7 @@ class TwinEnv(gym.Env):
         hands = self._first_hands.copy()
         if self.hand_jitter_m > 0.0:
             hands += self.np_random.normal(0.0, self.hand_jitter_m, size=hands.shape)
-        self._sim = self.model.simulation(hands)
+        self._sim = self.model.simulation(hands, device=self.device)
         self._steps = 0
         self._last_observation = self._observe()
         self._last_cost = self._sim.chamfer_to(self.goal)

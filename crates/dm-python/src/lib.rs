@@ -1,9 +1,10 @@
 //! `deformmaster._native`: the Rust side of the `deformmaster` Python
 //! package (docs/python.md). Scene bundles as NumPy arrays, fitted world
 //! models stepped frame by frame with the GIL released, renders with the
-//! fitted splats, the per-frame metrics, dm-fit's and dm-plan's runs. The Python layer
-//! (`python/deformmaster/`) coerces array types and adds the Gymnasium
-//! environment; all physics runs here.
+//! fitted splats, the per-frame metrics, dm-fit's and dm-plan's runs. The
+//! Python layer (`python/deformmaster/`) coerces array types, turns
+//! keywords into the tools' flags and adds the Gymnasium environment; all
+//! physics runs here.
 //!
 //! Every entry point runs inside [`guarded`]: library errors become
 //! `DeformMasterError` subclasses whose message names the file and field,

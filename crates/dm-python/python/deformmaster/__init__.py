@@ -144,6 +144,7 @@ def plan(model, bundle, goal, out=None, progress=None, **options):
         _path_of(bundle, "path"),
         "--goal",
         str(goal),
+        # dm-plan's parser asks for --out; the run writes only where `out` says.
         "--out",
         str(out) if out is not None else "-",
     ]

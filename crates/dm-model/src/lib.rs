@@ -569,36 +569,8 @@ impl WorldModel {
     /// coarser cells where the domain grows; the model itself when the
     /// domain already holds them.
     pub fn with_domain_containing(&self, points: &[[f64; 3]]) -> Self {
-        let physics = &self.physics;
-        let origin = physics.domain_origin;
-        let inside = |p: &[f64; 3]| {
-            (0..3).all(|a| {
-                let clip = physics.position_clip;
-                p[a] >= origin[a] + clip[0] * physics.domain_size
-                    && p[a] <= origin[a] + clip[1] * physics.domain_size
-            })
-        };
-        if points.iter().all(inside) {
-            return self.clone();
-        }
-        let mut lo = origin;
-        let mut hi = origin.map(|o| o + physics.domain_size);
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
         let mut out = self.clone();
-        let (origin, size) = cube_domain_containing(
-            lo,
-            hi,
-            physics.grid_res,
-            physics.wall_cells,
-            physics.position_clip,
-        );
-        out.physics.domain_origin = origin;
-        out.physics.domain_size = size;
+        out.physics = self.physics.with_domain_containing(points);
         out
     }
 

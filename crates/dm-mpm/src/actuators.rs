@@ -4,7 +4,7 @@
 //! The `Single` and `Rigid` modes are the paper's ablations.
 
 use crate::neighbors::PointIndex;
-use crate::real::{Real, Vec3};
+use crate::real::{Real, Vec3, vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -37,6 +37,38 @@ impl Default for ActuatorConfig {
             kp: 3000.0,
             kd: 60.0,
             grasp_radius: 0.03,
+        }
+    }
+}
+
+/// One particle's tie to a hand anchor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coupling {
+    pub anchor: u32,
+    /// Anchor minus particle at grasp time, metres.
+    pub rest_offset: [f64; 3],
+    /// Distance at grasp time, metres.
+    pub capture_distance: f64,
+}
+
+/// The hands' hold on an object, carried from one world to another: each
+/// particle's couplings in a caller's particle order, and which anchors
+/// have grasped (they take hold of nothing more).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Grip {
+    pub grasped: Vec<bool>,
+    pub couplings: Vec<Vec<Coupling>>,
+}
+
+impl Grip {
+    /// The grip of the particles `particles` of this one, in that order.
+    pub fn subset(&self, particles: &[usize]) -> Grip {
+        Grip {
+            grasped: self.grasped.clone(),
+            couplings: particles
+                .iter()
+                .map(|&i| self.couplings[i].clone())
+                .collect(),
         }
     }
 }
@@ -241,6 +273,43 @@ impl<T: Real> Actuators<T> {
                 *xp = target_x / n;
                 *vp = target_v / n;
             });
+    }
+
+    /// The couplings of the particles in `slots`, in that order.
+    pub(crate) fn grip_of(&self, slots: impl Iterator<Item = usize>) -> Grip {
+        let couplings = slots
+            .map(|p| {
+                let r = self.row_start[p] as usize..self.row_start[p + 1] as usize;
+                r.map(|i| Coupling {
+                    anchor: self.anchor[i],
+                    rest_offset: [0, 1, 2].map(|a| self.rest_offset[i][a].to_f64()),
+                    capture_distance: self.capture_distance[i].to_f64(),
+                })
+                .collect()
+            })
+            .collect();
+        Grip {
+            grasped: self.grasped.clone(),
+            couplings,
+        }
+    }
+
+    /// Replaces the couplings by `grip`'s, whose particle `id_of_slot[s]`
+    /// sits in slot `s`.
+    pub(crate) fn set_grip(&mut self, grip: &Grip, id_of_slot: &[u32]) {
+        self.grasped = grip.grasped.clone();
+        self.row_start = vec![0];
+        self.anchor.clear();
+        self.rest_offset.clear();
+        self.capture_distance.clear();
+        for &id in id_of_slot {
+            for c in &grip.couplings[id as usize] {
+                self.anchor.push(c.anchor);
+                self.rest_offset.push(vec3(c.rest_offset));
+                self.capture_distance.push(T::lit(c.capture_distance));
+            }
+            self.row_start.push(self.anchor.len() as u32);
+        }
     }
 
     /// Renumbers particle slots after the world reorders its particles.

@@ -1,5 +1,7 @@
 //! Choosing the simulation domain around a scene.
 
+use crate::config::PhysicsConfig;
+
 /// A cubic domain `(origin, size)` whose usable interior — inside the slip
 /// walls and the position clip, with one spare cell — contains the box
 /// `[lo, hi]`. The box is centred in the cube.
@@ -17,6 +19,39 @@ pub fn cube_domain_containing(
     let size = extent / (1.0 - 2.0 * margin);
     let origin = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * size);
     (origin, size)
+}
+
+impl PhysicsConfig {
+    /// This configuration in a cube domain that also holds `points`: the
+    /// same grid, so coarser cells where the domain grows; unchanged when
+    /// the domain's clipped interior already holds them.
+    pub fn with_domain_containing(&self, points: &[[f64; 3]]) -> Self {
+        let origin = self.domain_origin;
+        let inside = |p: &[f64; 3]| {
+            (0..3).all(|a| {
+                p[a] >= origin[a] + self.position_clip[0] * self.domain_size
+                    && p[a] <= origin[a] + self.position_clip[1] * self.domain_size
+            })
+        };
+        if points.iter().all(inside) {
+            return self.clone();
+        }
+        let mut lo = origin;
+        let mut hi = origin.map(|o| o + self.domain_size);
+        for p in points {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let (domain_origin, domain_size) =
+            cube_domain_containing(lo, hi, self.grid_res, self.wall_cells, self.position_clip);
+        Self {
+            domain_origin,
+            domain_size,
+            ..self.clone()
+        }
+    }
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@
 //! in the caller's particle order.
 
 use crate::SimError;
-use crate::actuators::{ActuatorConfig, ActuatorMode, Actuators};
+use crate::actuators::{ActuatorConfig, ActuatorMode, Actuators, Grip};
 use crate::config::PhysicsConfig;
 use crate::material::ParticleMaterial;
 use crate::real::{Mat3, Real, Vec3, vec3};
@@ -278,6 +278,47 @@ impl<T: Real> World<T> {
     pub fn set_gains(&mut self, kp: f64, kd: f64) {
         self.actuators.config.kp = kp;
         self.actuators.config.kd = kd;
+    }
+
+    /// The hands' hold on the caller's particles `particles`, in that order.
+    pub fn grip(&self, particles: &[usize]) -> Result<Grip, SimError> {
+        let n = self.particle_count();
+        let mut slot_of = vec![0usize; n];
+        for (slot, &id) in self.id_of_slot.iter().enumerate() {
+            slot_of[id as usize] = slot;
+        }
+        if let Some(bad) = particles.iter().find(|&&i| i >= n) {
+            return Err(SimError::InvalidInput(format!(
+                "particle {bad} does not exist; the world has {n}"
+            )));
+        }
+        Ok(self
+            .actuators
+            .grip_of(particles.iter().map(|&i| slot_of[i])))
+    }
+
+    /// Replaces the hands' hold on the object by `grip` (one entry per
+    /// particle, caller's order): the next frames pull the particles it
+    /// couples, and anchors it marks grasped take hold of nothing more.
+    pub fn set_grip(&mut self, grip: &Grip) -> Result<(), SimError> {
+        if grip.couplings.len() != self.particle_count() {
+            return Err(SimError::InvalidInput(format!(
+                "a grip of {} particles for a world of {}",
+                grip.couplings.len(),
+                self.particle_count()
+            )));
+        }
+        let finite =
+            grip.couplings.iter().flatten().all(|c| {
+                c.capture_distance.is_finite() && c.rest_offset.iter().all(|v| v.is_finite())
+            });
+        if !finite {
+            return Err(SimError::InvalidInput(
+                "a grip's offsets are not finite".into(),
+            ));
+        }
+        self.actuators.set_grip(grip, &self.id_of_slot);
+        Ok(())
     }
 
     /// Lets go of the object: every coupling to a hand anchor is dropped,

@@ -1027,3 +1027,75 @@ fn a_released_world_steps_as_one_that_never_grasped() {
     assert_eq!(held.positions(), fresh.positions());
     assert_eq!(held.velocities(), fresh.velocities());
 }
+
+/// A world given another's state and grip steps as that world does: the
+/// couplings (anchors, rest offsets) move between worlds whatever order
+/// each keeps its particles in, and anchors that grasped take hold of
+/// nothing more. Tolerance 1e-6 m: the worlds list the particles in
+/// opposite orders, so the grid sums f32 terms in another order (seen
+/// 1.5e-8 m); a coupling on the wrong particle moves it by millimetres.
+#[test]
+fn a_world_given_another_worlds_grip_steps_as_that_world() {
+    let config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
+    let mut points = Vec::new();
+    for i in 0..5 {
+        for j in 0..4 {
+            for k in 0..4 {
+                points.push([
+                    0.45 + 0.02 * i as f64,
+                    0.45 + 0.02 * j as f64,
+                    0.2 + 0.02 * k as f64,
+                ]);
+            }
+        }
+    }
+    let n = points.len();
+    let material = || ParticleMaterial::<f32>::uniform(n, 1e5, 0.3, [1.0, 0.0, 0.0]);
+    let act = ActuatorConfig::default();
+    let volume = 0.02f64.powi(3);
+    let mut held = World::new(config.clone(), &points, volume, material(), act).expect("world");
+    let hands = [[0.46, 0.48, 0.26], [0.52, 0.48, 0.26]];
+    let raised = [[0.46, 0.48, 0.30], [0.53, 0.48, 0.31]];
+    held.step_frame(&hands, &raised, &[true, true])
+        .expect("grasp");
+    let all: Vec<usize> = (0..n).collect();
+    let grip = held.grip(&all).expect("grip");
+    assert!(grip.couplings.iter().any(|c| !c.is_empty()));
+    assert_eq!(grip.grasped, vec![true, true]);
+    // The same particles listed in reverse: the world keeps another order.
+    let reversed: Vec<[f64; 3]> = points.iter().rev().copied().collect();
+    let order: Vec<usize> = (0..n).rev().collect();
+    let mut fresh = World::new(config, &reversed, volume, material(), act).expect("world");
+    let state = held.state();
+    let mut state_reversed = state.clone();
+    for (p, &i) in order.iter().enumerate() {
+        state_reversed.x[p] = state.x[i];
+        state_reversed.v[p] = state.v[i];
+        state_reversed.f[p] = state.f[i];
+        state_reversed.c[p] = state.c[i];
+    }
+    fresh.set_state(&state_reversed).expect("state");
+    fresh.set_grip(&grip.subset(&order)).expect("grip");
+    assert_eq!(
+        fresh.grip(&(0..n).collect::<Vec<_>>()).expect("grip"),
+        grip.subset(&order)
+    );
+    let further = [[0.47, 0.49, 0.33], [0.55, 0.48, 0.35]];
+    // Grasp asked again: the anchors have grasped, so nothing changes.
+    held.step_frame(&raised, &further, &[true, true])
+        .expect("step");
+    fresh
+        .step_frame(&raised, &further, &[true, true])
+        .expect("step");
+    let (a, b) = (held.positions(), fresh.positions());
+    for (p, &i) in order.iter().enumerate() {
+        let apart = (0..3)
+            .map(|k| (b[p][k] - a[i][k]).abs())
+            .fold(0.0, f64::max);
+        assert!(apart < 1e-6, "particle {i}: {apart:e} m apart");
+    }
+    assert!(
+        fresh.set_grip(&grip.subset(&order[1..])).is_err(),
+        "a grip for fewer particles is refused"
+    );
+}

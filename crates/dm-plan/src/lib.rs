@@ -12,6 +12,7 @@ pub mod actions;
 pub mod cost;
 pub mod goal;
 pub mod gradient;
+pub mod live;
 pub mod mppi;
 pub mod options;
 pub mod output;

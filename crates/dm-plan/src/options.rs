@@ -19,6 +19,58 @@ pub enum Optimizer {
     MppiGradient,
 }
 
+/// How a plan is searched: the horizon and knots, the optimisers and the
+/// planning world. dm-plan's flags, and what a plan from a live
+/// simulation takes.
+#[derive(Clone, Debug, Serialize, clap::Args)]
+pub struct SearchOptions {
+    /// Search: MPPI, gradient refinement through the simulator, or both in turn.
+    #[arg(long, value_enum, default_value_t = Optimizer::MppiGradient)]
+    pub optimizer: Optimizer,
+    /// Frames the plan spans.
+    #[arg(long, default_value_t = 120)]
+    pub horizon: usize,
+    /// Knots per hand.
+    #[arg(long, default_value_t = 4)]
+    pub knots: usize,
+    /// MPPI samples per iteration.
+    #[arg(long, default_value_t = 20)]
+    pub samples: usize,
+    /// MPPI iterations.
+    #[arg(long, default_value_t = 10)]
+    pub iterations: usize,
+    /// MPPI knot noise, metres.
+    #[arg(long, default_value_t = 0.02)]
+    pub noise_m: f64,
+    /// Gradient refinement steps.
+    #[arg(long, default_value_t = 20)]
+    pub gradient_iters: usize,
+    /// Gradient refinement step (Adam), metres.
+    #[arg(long, default_value_t = 0.004)]
+    pub learning_rate_m: f64,
+    /// Substeps per frame differentiated exactly in the refinement.
+    #[arg(long, default_value_t = 8)]
+    pub window: usize,
+    /// Fastest hand speed before the cost penalises it, m/s.
+    #[arg(long, default_value_t = 0.5)]
+    pub max_speed: f64,
+    /// How far the hands may move beyond the object's box where the plan starts, metres.
+    #[arg(long, default_value_t = 0.2)]
+    pub workspace_margin_m: f64,
+    /// Plan in the model's own particles, grid and substeps (slower) instead of the playground's coarse simulation.
+    #[arg(long)]
+    pub exact: bool,
+    /// Apply the model's residual network in the planning world (off: physics only).
+    #[arg(long)]
+    pub residual: bool,
+    /// Seed of MPPI's samples and of the observation noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Where the planning world runs, and the model when it is the plant (cuda: the first NVIDIA GPU, the residual network too; a truth plant stays on the CPU).
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    pub device: Device,
+}
+
 /// `dm-plan`'s options, saved as the run record in plan.json.
 #[derive(Clone, Debug, Serialize, clap::Parser)]
 #[command(
@@ -46,36 +98,12 @@ pub struct PlanOptions {
     /// Frames the object settles for after the hands let go at `--start-frame`.
     #[arg(long, default_value_t = 30)]
     pub settle_frames: usize,
-    /// Search: MPPI, gradient refinement through the simulator, or both in turn.
-    #[arg(long, value_enum, default_value_t = Optimizer::MppiGradient)]
-    pub optimizer: Optimizer,
-    /// Frames the plan spans.
-    #[arg(long, default_value_t = 120)]
-    pub horizon: usize,
-    /// Knots per hand.
-    #[arg(long, default_value_t = 4)]
-    pub knots: usize,
     /// Hands (grasp points chosen where the goal moves the object most).
     #[arg(long, default_value_t = 2)]
     pub hands: usize,
-    /// MPPI samples per iteration.
-    #[arg(long, default_value_t = 20)]
-    pub samples: usize,
-    /// MPPI iterations.
-    #[arg(long, default_value_t = 10)]
-    pub iterations: usize,
-    /// MPPI knot noise, metres.
-    #[arg(long, default_value_t = 0.02)]
-    pub noise_m: f64,
-    /// Gradient refinement steps.
-    #[arg(long, default_value_t = 20)]
-    pub gradient_iters: usize,
-    /// Gradient refinement step (Adam), metres.
-    #[arg(long, default_value_t = 0.004)]
-    pub learning_rate_m: f64,
-    /// Substeps per frame differentiated exactly in the refinement.
-    #[arg(long, default_value_t = 8)]
-    pub window: usize,
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub search: SearchOptions,
     /// Re-plan from the observed state every N frames (0: open loop).
     #[arg(long, default_value_t = 0)]
     pub replan_every: usize,
@@ -85,18 +113,6 @@ pub struct PlanOptions {
     /// Noise of the observed positions re-planning starts from, millimetres.
     #[arg(long, default_value_t = 1.5)]
     pub observation_noise_mm: f64,
-    /// Fastest hand speed before the cost penalises it, m/s.
-    #[arg(long, default_value_t = 0.5)]
-    pub max_speed: f64,
-    /// How far the hands may move beyond the object's first-frame box, metres.
-    #[arg(long, default_value_t = 0.2)]
-    pub workspace_margin_m: f64,
-    /// Plan in the model's own particles, grid and substeps (slower) instead of the playground's coarse simulation.
-    #[arg(long)]
-    pub exact: bool,
-    /// Apply the model's residual network in the planning world (off: physics only).
-    #[arg(long)]
-    pub residual: bool,
     /// Plan with the untrained model of the bundle instead of MODEL_DIR's (for comparison).
     #[arg(long)]
     pub untrained: bool,
@@ -106,27 +122,16 @@ pub struct PlanOptions {
     /// Write the frames but no MP4.
     #[arg(long)]
     pub no_video: bool,
-    /// Seed of MPPI's samples and of the observation noise.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Where the planning world runs, and the model when it is the plant (cuda: the first NVIDIA GPU, the residual network too; a truth plant stays on the CPU).
-    #[arg(long, value_enum, default_value_t = Device::Cpu)]
-    pub device: Device,
 }
 
-impl PlanOptions {
+impl SearchOptions {
     pub(crate) fn validate(&self) -> Result<(), PlanError> {
-        let checks: [(&str, bool, &str); 9] = [
+        let checks: [(&str, bool, &str); 8] = [
             ("--horizon", self.horizon >= 2, "needs at least 2 frames"),
             (
                 "--knots",
                 self.knots >= 1 && self.knots <= self.horizon,
                 "needs 1 to HORIZON knots",
-            ),
-            (
-                "--hands",
-                (1..=4).contains(&self.hands),
-                "needs 1 to 4 hands",
             ),
             ("--samples", self.samples >= 2, "needs at least 2 samples"),
             (
@@ -146,9 +151,9 @@ impl PlanOptions {
                 "needs a positive speed",
             ),
             (
-                "--observation-noise-mm",
-                self.observation_noise_mm.is_finite() && self.observation_noise_mm >= 0.0,
-                "needs a noise ≥ 0",
+                "--workspace-margin-m",
+                self.workspace_margin_m.is_finite() && self.workspace_margin_m >= 0.0,
+                "needs a margin ≥ 0",
             ),
         ];
         for (option, ok, problem) in checks {
@@ -156,14 +161,24 @@ impl PlanOptions {
                 return Err(invalid(option, problem));
             }
         }
-        if self.residual && self.untrained {
+        Ok(())
+    }
+}
+
+impl PlanOptions {
+    pub(crate) fn validate(&self) -> Result<(), PlanError> {
+        self.search.validate()?;
+        if !(1..=4).contains(&self.hands) {
+            return Err(invalid("--hands", "needs 1 to 4 hands"));
+        }
+        if !(self.observation_noise_mm.is_finite() && self.observation_noise_mm >= 0.0) {
+            return Err(invalid("--observation-noise-mm", "needs a noise ≥ 0"));
+        }
+        if self.search.residual && self.untrained {
             return Err(invalid(
                 "--residual",
                 "the untrained model has no trained residual network (drop --untrained or --residual)",
             ));
-        }
-        if !(self.workspace_margin_m.is_finite() && self.workspace_margin_m >= 0.0) {
-            return Err(invalid("--workspace-margin-m", "needs a margin ≥ 0"));
         }
         Ok(())
     }

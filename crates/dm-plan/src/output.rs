@@ -13,10 +13,9 @@ pub fn frames_array(frames: &[Vec<[f64; 3]>]) -> ndarray::Array3<f32> {
     ndarray::Array3::from_shape_fn((frames.len(), n, 3), |(t, i, a)| frames[t][i][a] as f32)
 }
 
-/// The hands' anchors carried out per frame as actions.npy holds them,
+/// Hand anchors per frame as actions.npy holds those carried out,
 /// (T, H, 3) metres.
-pub fn actions_array(result: &RunResult) -> ndarray::Array3<f64> {
-    let hands = &result.hands;
+pub fn actions_array(hands: &[Vec<[f64; 3]>]) -> ndarray::Array3<f64> {
     let h = hands.first().map_or(0, Vec::len);
     ndarray::Array3::from_shape_fn((hands.len(), h, 3), |(t, i, a)| hands[t][i][a])
 }
@@ -29,7 +28,7 @@ pub fn write_outputs(out: &Path, result: &RunResult) -> Result<(), PlanError> {
         problem: format!("creating the directory: {e}"),
     })?;
     let hands = &result.hands;
-    write_npy_file(&out.join("actions.npy"), &actions_array(result))?;
+    write_npy_file(&out.join("actions.npy"), &actions_array(hands))?;
     write_json_atomic(
         &out.join("actions.json"),
         &serde_json::json!({

@@ -20,7 +20,7 @@ use serde::Serialize;
 use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, Scores, TerminalCost, scores};
 use crate::goal::Goal;
-pub use crate::options::{Optimizer, PlanOptions};
+pub use crate::options::{Optimizer, PlanOptions, SearchOptions};
 pub use crate::output::write_outputs;
 use crate::plant::Plant;
 use crate::search::{Search, shifted};
@@ -176,7 +176,12 @@ fn grasp_points(
 
 /// The box the hands stay in: the object's box at the start grown by the
 /// margin (upwards by twice it), never below the floor.
-fn workspace(particles: &[[f64; 3]], margin: f64, up: [f64; 3], floor: f64) -> Workspace {
+pub(crate) fn workspace(
+    particles: &[[f64; 3]],
+    margin: f64,
+    up: [f64; 3],
+    floor: f64,
+) -> Workspace {
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for p in particles {
         for a in 0..3 {
@@ -198,7 +203,7 @@ fn workspace(particles: &[[f64; 3]], margin: f64, up: [f64; 3], floor: f64) -> W
 
 /// A first guess: each hand moves its grasp point straight towards where
 /// the goal puts it, knot by knot.
-fn initial_plan(
+pub(crate) fn initial_plan(
     grasps: &[[f64; 3]],
     goal: &Goal,
     correspondences: Option<&[usize]>,
@@ -357,13 +362,13 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     } else {
         WorldModel::load(&options.model_dir.join("model.json"))?
     };
-    let play = if options.exact {
+    let play = if options.search.exact {
         PlayOptions::default()
     } else {
         PlayOptions::interactive()
     };
-    let mut planning = PlanningModel::new(&model, &play)?.on_device(options.device);
-    if options.residual {
+    let mut planning = PlanningModel::new(&model, &play)?.on_device(options.search.device);
+    if options.search.residual {
         planning = planning.with_residual(&model, dm_residual::Precision::F32)?;
     }
     let rest_goal = read_goal(options, &bundle, &model)?;
@@ -378,7 +383,12 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     // The plant (built first: a plant that cannot be built should stop the
     // run before the search). Its domain holds the hands' reach from the
     // first frame and, for a later start, the clip's hands too.
-    let rest_workspace = workspace(planning.particles(), options.workspace_margin_m, up, floor);
+    let rest_workspace = workspace(
+        planning.particles(),
+        options.search.workspace_margin_m,
+        up,
+        floor,
+    );
     let mut reach = vec![rest_workspace.lo, rest_workspace.hi];
     if options.start_frame > 0 {
         reach.extend(clip_hands.iter().take(options.start_frame + 1).flatten());
@@ -400,7 +410,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             Plant::model(
                 &model.with_domain_containing(&reach),
                 clip_hands.clone(),
-                options.device,
+                options.search.device,
             )?,
             "model".to_string(),
         ),
@@ -417,7 +427,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     });
     let noise = Normal::new(0.0, options.observation_noise_mm * 1e-3)
         .map_err(|e| invalid("--observation-noise-mm", e.to_string()))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed);
+    let mut rng = ChaCha8Rng::seed_from_u64(options.search.seed ^ 0x5eed);
     // The planning world's own account of the plant (its deformation);
     // positions and velocities are observed from the plant.
     let mut tracker = planning.world::<f32>()?;
@@ -456,7 +466,12 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         _ => rest_goal,
     };
     let workspace = {
-        let w = workspace(&start_positions, options.workspace_margin_m, up, floor);
+        let w = workspace(
+            &start_positions,
+            options.search.workspace_margin_m,
+            up,
+            floor,
+        );
         // Never beyond the plant's domain.
         let (lo, hi) = bounds(&reach);
         Workspace {
@@ -478,7 +493,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         ));
     }
     let weights = CostWeights {
-        max_speed_m_s: options.max_speed,
+        max_speed_m_s: options.search.max_speed,
         ..CostWeights::default()
     };
     let cost = TerminalCost::new(
@@ -488,7 +503,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         weights,
     );
     let mut search = Search {
-        options,
+        options: &options.search,
         planning: &planning,
         cost: &cost,
         weights,
@@ -501,15 +516,15 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         &goal,
         correspondences.as_deref(),
         &start_positions,
-        options.knots,
-        options.horizon,
+        options.search.knots,
+        options.search.horizon,
     );
     let mut plan = search.search(
         &first,
         start_state.as_ref(),
-        options.iterations,
-        options.gradient_iters,
-        options.seed,
+        options.search.iterations,
+        options.search.gradient_iters,
+        options.search.seed,
         progress,
     )?;
     let initial_plan_record = plan.clone();
@@ -536,11 +551,11 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
     let mut t = 0;
     // `plan` runs from frame `offset` of the whole motion.
     let mut offset = 0;
-    while t < options.horizon {
+    while t < options.search.horizon {
         let segment = if options.replan_every == 0 {
-            options.horizon - t
+            options.search.horizon - t
         } else {
-            options.replan_every.min(options.horizon - t)
+            options.replan_every.min(options.search.horizon - t)
         };
         for s in 0..segment {
             let (from, to) = (
@@ -551,10 +566,13 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             tracker.step_frame(&from, &to, &vec![t - offset + s == 0; from.len()])?;
             executed.push(plant.positions()?);
             hands.push(to);
-            keep_going(progress("execute", t + s + 1, options.horizon), "execute")?;
+            keep_going(
+                progress("execute", t + s + 1, options.search.horizon),
+                "execute",
+            )?;
         }
         t += segment;
-        if options.replan_every > 0 && t < options.horizon {
+        if options.replan_every > 0 && t < options.search.horizon {
             // Observed: the plant's positions with noise, its velocities;
             // the deformation as the model predicts it.
             let state = observe(&mut plant, &mut tracker, &observed_of, &noise, &mut rng)?;
@@ -564,7 +582,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
                 Some(&state),
                 options.replan_iterations,
                 options.replan_iterations,
-                options.seed + replans as u64 + 1,
+                options.search.seed + replans as u64 + 1,
                 progress,
             )?;
             offset = t;

@@ -8,13 +8,13 @@ use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, TerminalCost};
 use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
-use crate::options::{Optimizer, PlanOptions};
+use crate::options::{Optimizer, SearchOptions};
 use crate::run::{History, Progress};
 use crate::world::{PlanningModel, rollout};
 
 /// The rollouts and cost histories of a run's searches.
 pub(crate) struct Search<'a> {
-    pub(crate) options: &'a PlanOptions,
+    pub(crate) options: &'a SearchOptions,
     pub(crate) planning: &'a PlanningModel,
     pub(crate) cost: &'a TerminalCost,
     pub(crate) weights: CostWeights,

@@ -13,10 +13,11 @@ use dm_model::WorldModel;
 use dm_model::corrected::CorrectedWorld;
 use dm_model::device::{Device, DeviceReal, DeviceWorld};
 use dm_model::residual::ResidualNetwork;
+use dm_mpm::actuators::Grip;
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::{ActuatorConfig, ActuatorMode, World};
 use dm_play::PlayOptions;
-use dm_play::session::CoarseModel;
+use dm_play::session::{CoarseModel, MaterialControl};
 use dm_residual::Precision;
 
 use crate::PlanError;
@@ -28,6 +29,13 @@ pub struct PlanningModel {
     coarse: CoarseModel,
     actuator: ActuatorConfig,
     experts: dm_model::ExpertChoice,
+    /// Scale on the fitted Young's moduli, and one Poisson ratio for all
+    /// when given (a simulation's changed material).
+    e_scale: f64,
+    nu: Option<f64>,
+    /// The hands' hold every world starts with (none: they grasp at the
+    /// first frame).
+    grip: Option<Arc<Grip>>,
     residual: Option<Arc<ResidualNetwork>>,
     device: Device,
 }
@@ -50,6 +58,9 @@ impl PlanningModel {
             coarse,
             actuator,
             experts: model.options.experts,
+            e_scale: 1.0,
+            nu: None,
+            grip: None,
             residual: None,
             device: Device::Cpu,
         })
@@ -63,6 +74,42 @@ impl PlanningModel {
 
     pub fn device(&self) -> Device {
         self.device
+    }
+
+    /// The same world in `control`'s material: its scale on the fitted
+    /// Young's moduli, its Poisson ratio and particle damping.
+    pub fn with_material(mut self, control: &MaterialControl) -> Self {
+        self.e_scale = control.e_scale;
+        self.nu = control.nu;
+        self.coarse.physics.particle_damping = control.damping;
+        self
+    }
+
+    /// The same world with the hands holding the object as `grip` says
+    /// (one entry per planning-world particle) from its first frame.
+    pub fn with_grip(mut self, grip: Grip) -> Self {
+        self.grip = Some(Arc::new(grip));
+        self
+    }
+
+    /// The same world in a domain that also holds `points` (an object
+    /// that has moved beyond the first frame's domain).
+    pub fn with_domain_containing(mut self, points: &[[f64; 3]]) -> Self {
+        self.coarse.physics = self.coarse.physics.with_domain_containing(points);
+        self
+    }
+
+    /// The box particles and hands stay in: the domain inside its
+    /// position clip.
+    pub fn interior(&self) -> ([f64; 3], [f64; 3]) {
+        let physics = &self.coarse.physics;
+        let at = |f: f64| physics.domain_origin.map(|o| o + f * physics.domain_size);
+        (at(physics.position_clip[0]), at(physics.position_clip[1]))
+    }
+
+    /// The model particle each planning-world particle stands for.
+    pub fn model_index(&self) -> &[usize] {
+        &self.coarse.body.model_index
     }
 
     /// The same world with `model`'s residual network correcting every
@@ -106,15 +153,18 @@ impl PlanningModel {
     /// A fresh world at the first frame, on the planning device (on the
     /// GPU with a stream of its own, so that rollouts run concurrently).
     pub fn world<T: DeviceReal>(&self) -> Result<PlanningWorld<T>, PlanError> {
-        let mut material = self.coarse.material::<T>(1.0, None);
+        let mut material = self.coarse.material::<T>(self.e_scale, self.nu);
         self.experts.apply_to(&mut material);
-        let world = World::new(
+        let mut world = World::new(
             self.coarse.physics.clone(),
             &self.coarse.body.particles,
             self.coarse.body.particle_volume,
             material,
             self.actuator,
         )?;
+        if let Some(grip) = &self.grip {
+            world.set_grip(grip)?;
+        }
         Ok(CorrectedWorld::new(
             DeviceWorld::new(world, self.device)?,
             self.residual.clone(),

@@ -183,26 +183,33 @@ fn small_plan(
         plant: Some(truth.to_path_buf()),
         start_frame: 0,
         settle_frames: 30,
+        hands: 1,
+        search: small_search(),
+        replan_every: 6,
+        replan_iterations: 1,
+        observation_noise_mm: 1.5,
+        untrained: true,
+        camera: 0,
+        no_video: true,
+    }
+}
+
+/// A few samples and steps over a short horizon.
+fn small_search() -> dm_plan::run::SearchOptions {
+    dm_plan::run::SearchOptions {
         optimizer: dm_plan::run::Optimizer::MppiGradient,
         horizon: 12,
         knots: 2,
-        hands: 1,
         samples: 6,
         iterations: 3,
         noise_m: 0.02,
         gradient_iters: 3,
         learning_rate_m: 0.004,
         window: 4,
-        replan_every: 6,
-        replan_iterations: 1,
-        observation_noise_mm: 1.5,
         max_speed: 0.5,
         workspace_margin_m: 0.2,
         exact: false,
-        untrained: true,
         residual: false,
-        camera: 0,
-        no_video: true,
         seed: 1,
         device: dm_model::device::Device::Cpu,
     }
@@ -280,10 +287,13 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
     let options = |start_frame: usize| dm_plan::run::PlanOptions {
         start_frame,
         settle_frames: 4,
-        horizon: 10,
-        samples: 4,
-        iterations: 2,
-        gradient_iters: 2,
+        search: dm_plan::run::SearchOptions {
+            horizon: 10,
+            samples: 4,
+            iterations: 2,
+            gradient_iters: 2,
+            ..small_search()
+        },
         replan_every: 0,
         ..small_plan(dir.path(), &scene, &truth, "move")
     };
@@ -324,4 +334,197 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
         later.record.executed.final_chamfer_m,
         later.record.start.final_chamfer_m
     );
+}
+
+/// A plan from a simulation stepped part way through its clip starts
+/// exactly where the simulation is (its hands, its particles' state), and
+/// stepping the simulation along the planned anchors brings the object
+/// closer to the goal than it was.
+#[test]
+fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_goal() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, model) = tiny(dir.path(), Preset::Rope, 5, ResidualKind::None);
+    let mut simulation = model.simulation().expect("simulation");
+    let steps = 4;
+    for t in 0..steps {
+        let (from, to, grasp) = dm_model::hand_step(&bundle, t);
+        simulation.step(&from, &to, &grasp).expect("step");
+    }
+    let state = simulation.world().expect("world").state();
+    let hands = dm_model::hand_anchors(&bundle, steps);
+    let material = dm_play::MaterialControl {
+        e_scale: 1.0,
+        nu: None,
+        damping: model.physics.particle_damping,
+    };
+    let meta = &bundle.meta;
+    let goal = Goal::named(
+        "move",
+        meta.category,
+        &model.particles,
+        model.surface_count,
+        meta.up_axis.unit_vector(),
+        meta.floor_height_m,
+    )
+    .expect("goal");
+    let options = dm_plan::run::SearchOptions {
+        horizon: 10,
+        samples: 4,
+        iterations: 2,
+        gradient_iters: 2,
+        ..small_search()
+    };
+    let all: Vec<usize> = (0..model.particles.len()).collect();
+    let grip = simulation.world().expect("world").grip(&all).expect("grip");
+    let start = dm_plan::live::LiveStart {
+        state: &state,
+        hands: &hands,
+        grip: &grip,
+        material: &material,
+    };
+    let plan = dm_plan::live::plan_from_state(&model, &start, &goal, &options, &mut |_, _, _| {
+        ControlFlow::Continue(())
+    })
+    .expect("plan");
+    assert_eq!(plan.hands.len(), options.horizon + 1);
+    assert_eq!(plan.hands[0], hands, "the plan starts where the hands are");
+    for (p, &i) in plan.planned_particles.iter().enumerate() {
+        let now = [0, 1, 2].map(|a| f64::from(state.x[i][a]));
+        assert_eq!(plan.planned[0][p], now, "planning particle {p} (model {i})");
+    }
+    let surface_scores = |positions: &[[f32; 3]]| {
+        let positions: Vec<[f64; 3]> = positions.iter().map(|p| p.map(f64::from)).collect();
+        dm_plan::cost::scores(
+            &goal.points,
+            &positions[..model.surface_count],
+            &positions,
+            goal.particles.as_deref(),
+        )
+    };
+    let before = surface_scores(&simulation.positions_f32().expect("positions"));
+    for t in 0..options.horizon {
+        let grasp = vec![false; hands.len()];
+        simulation
+            .step(&plan.hands[t], &plan.hands[t + 1], &grasp)
+            .expect("step");
+    }
+    let after = surface_scores(&simulation.positions_f32().expect("positions"));
+    assert!(
+        after.final_chamfer_m < 0.8 * before.final_chamfer_m,
+        "Chamfer to the goal {:.4} m before, {:.4} m after the plan",
+        before.final_chamfer_m,
+        after.final_chamfer_m
+    );
+    assert!(
+        plan.record.planned.final_chamfer_m < plan.record.start.final_chamfer_m,
+        "planned {:?} against the start {:?}",
+        plan.record.planned,
+        plan.record.start
+    );
+}
+
+/// The planning world takes a simulation's changed material: the same
+/// hand motion bends a stiffer object less.
+#[test]
+fn the_planning_world_steps_in_the_material_it_is_given() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, model) = tiny(dir.path(), Preset::Rope, 6, ResidualKind::None);
+    let hands = dm_model::hand_anchors(&bundle, 0);
+    let mut plan = ActionPlan::at_rest(&hands[..1], 2, 6);
+    plan.hands[0].knots = vec![[0.0, 0.0, 0.05], [0.05, 0.0, 0.1]];
+    let last_frame = |e_scale: f64| {
+        let material = dm_play::MaterialControl {
+            e_scale,
+            nu: None,
+            damping: model.physics.particle_damping,
+        };
+        let planning = PlanningModel::new(&model, &PlayOptions::interactive())
+            .expect("planning model")
+            .with_material(&material);
+        let mut world = planning.world::<f64>().expect("world");
+        let frames = dm_plan::world::rollout(&mut world, &plan, true).expect("rollout");
+        frames.last().cloned().expect("frames")
+    };
+    let (fitted, stiffer) = (last_frame(1.0), last_frame(8.0));
+    let moved = fitted
+        .iter()
+        .zip(&stiffer)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    assert!(
+        moved > 1e-3,
+        "8× the stiffness moved no particle by more than {moved} m"
+    );
+}
+
+/// With `exact`, the planning world is the model's own world: a
+/// simulation part way through its clip, stepped along the plan's anchors,
+/// does what was planned, bit for bit — positions, velocities,
+/// deformation, affine velocity and the hands' hold all carried over.
+#[test]
+fn an_exact_plan_is_what_the_simulation_then_does() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, model) = tiny(dir.path(), Preset::Rope, 7, ResidualKind::None);
+    let mut simulation = model.simulation().expect("simulation");
+    let steps = 3;
+    for t in 0..steps {
+        let (from, to, grasp) = dm_model::hand_step(&bundle, t);
+        simulation.step(&from, &to, &grasp).expect("step");
+    }
+    let state = simulation.world().expect("world").state();
+    let hands = dm_model::hand_anchors(&bundle, steps);
+    let material = dm_play::MaterialControl {
+        e_scale: 1.0,
+        nu: None,
+        damping: model.physics.particle_damping,
+    };
+    let meta = &bundle.meta;
+    let goal = Goal::named(
+        "u-shape",
+        meta.category,
+        &model.particles,
+        model.surface_count,
+        meta.up_axis.unit_vector(),
+        meta.floor_height_m,
+    )
+    .expect("goal");
+    let options = dm_plan::run::SearchOptions {
+        horizon: 5,
+        samples: 2,
+        iterations: 1,
+        gradient_iters: 1,
+        exact: true,
+        ..small_search()
+    };
+    let all: Vec<usize> = (0..model.particles.len()).collect();
+    let grip = simulation.world().expect("world").grip(&all).expect("grip");
+    let start = dm_plan::live::LiveStart {
+        state: &state,
+        hands: &hands,
+        grip: &grip,
+        material: &material,
+    };
+    let plan = dm_plan::live::plan_from_state(&model, &start, &goal, &options, &mut |_, _, _| {
+        ControlFlow::Continue(())
+    })
+    .expect("plan");
+    assert_eq!(plan.planned_particles.len(), model.particles.len());
+    for t in 0..options.horizon {
+        let grasp = vec![false; hands.len()];
+        simulation
+            .step(&plan.hands[t], &plan.hands[t + 1], &grasp)
+            .expect("step");
+        let done: Vec<[f64; 3]> = simulation
+            .positions_f32()
+            .expect("positions")
+            .iter()
+            .map(|p| p.map(f64::from))
+            .collect();
+        let apart = done
+            .iter()
+            .zip(&plan.planned[t + 1])
+            .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
+        assert!(apart == 0.0, "frame {}: {apart:e} m apart", t + 1);
+    }
 }

@@ -19,6 +19,7 @@ mod render;
 
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyDict};
 
 pyo3::create_exception!(
     deformmaster,
@@ -150,6 +151,33 @@ impl Watcher {
     }
 }
 
+/// Keyword options as a tool's flags: `_` for `-`, `True` a bare flag,
+/// `False` and `None` left out, any other value its `str()`.
+pub(crate) fn keyword_flags(options: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<String>> {
+    let mut args = Vec::new();
+    for (key, value) in options.into_iter().flatten() {
+        let flag = format!("--{}", key.extract::<String>()?.replace('_', "-"));
+        if value.is_none() {
+            continue;
+        }
+        if let Ok(on) = value.cast::<PyBool>() {
+            if on.is_true() {
+                args.push(flag);
+            }
+            continue;
+        }
+        args.push(flag);
+        args.push(value.str()?.to_string());
+    }
+    Ok(args)
+}
+
+/// [`keyword_flags`] for the Python layer's `fit` and `plan`.
+#[pyfunction]
+fn flags(options: &Bound<'_, PyDict>) -> PyResult<Vec<String>> {
+    keyword_flags(Some(options))
+}
+
 /// A tool's options parsed from its command-line flags `args` (without
 /// the program's name); the error is clap's first line, naming the flag.
 pub(crate) fn parse_flags<T: clap::Parser>(tool: &str, args: &[String]) -> PyResult<T> {
@@ -173,6 +201,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("BundleError", py.get_type::<BundleError>())?;
     m.add("ModelError", py.get_type::<ModelError>())?;
     m.add("SimulationError", py.get_type::<SimulationError>())?;
+    m.add_function(wrap_pyfunction!(flags, m)?)?;
     bundle::register(m)?;
     fit::register(m)?;
     model::register(m)?;

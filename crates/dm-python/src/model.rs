@@ -8,6 +8,8 @@ use dm_appearance::follow::SplatFollower;
 use dm_model::device::Device;
 use dm_model::metrics::{chamfer_to, frame_errors, match_tracks};
 use dm_model::{ModelOptions, ResidualKind, Simulation, WorldModel};
+use dm_plan::goal::Goal;
+use dm_plan::live::LiveStart;
 use dm_play::MaterialControl;
 use dm_play::session::{DAMPING_RANGE, E_SCALE_RANGE, NU_RANGE};
 use dm_splat::Gaussians;
@@ -21,8 +23,11 @@ use pyo3::types::PyDict;
 
 use crate::arrays::{frames_from_array, frames_to_array, points_from_array, points_to_array};
 use crate::bundle::PyBundle;
+use crate::plan::{plan_error, plan_live};
 use crate::render::{CameraArg, render_view};
-use crate::{DeformMasterError, Interrupts, ModelError, SimulationError, guarded, model_error};
+use crate::{
+    DeformMasterError, Interrupts, ModelError, SimulationError, guarded, keyword_flags, model_error,
+};
 
 /// A world model: fitted (`load_model`) or untrained (`Model.from_bundle`).
 #[pyclass(name = "Model", module = "deformmaster", frozen)]
@@ -248,6 +253,33 @@ impl PyModel {
         Ok(ids.into_pyarray(py))
     }
 
+    /// A named goal shape (rope: straighten, u-shape, move; cloth: fold,
+    /// flatten, move; toy: place, squash, rotate; docs/plan.md) made from
+    /// this model's first-frame particles in `bundle`'s scene: `(points
+    /// (M, 3), particles (M,))`, the arguments of `Simulation.plan`.
+    #[allow(clippy::type_complexity)]
+    fn goal<'py>(
+        &self,
+        py: Python<'py>,
+        name: &str,
+        bundle: &PyBundle,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<i64>>)> {
+        guarded("Model.goal", || {
+            let meta = &bundle.inner.meta;
+            let goal = Goal::named(
+                name,
+                meta.category,
+                &self.model.particles,
+                self.model.surface_count,
+                meta.up_axis.unit_vector(),
+                meta.floor_height_m,
+            )
+            .map_err(plan_error)?;
+            let ids: Vec<i64> = goal.particles.iter().flatten().map(|&i| i as i64).collect();
+            Ok((points_to_array(py, &goal.points), ids.into_pyarray(py)))
+        })
+    }
+
     /// Per-frame errors of a rollout ((T, N, 3), frame 0 first) against the
     /// bundle's tracks: `track_m` and `chamfer_m`, (T,) float64, NaN where
     /// no point was visible (docs/metrics.md).
@@ -435,6 +467,78 @@ impl PySimulation {
                 return Ok(numpy::PyArray3::zeros(py, [0, n, 3], false));
             }
             frames_to_array(py, &frames)
+        })
+    }
+
+    /// Plans where the hands go over the next frames to bring the object
+    /// to `goal` ((M, 3) metres; `particles`, (M,), the model particle that
+    /// should end at each point, when known, e.g. from `Model.goal`), from
+    /// this simulation's state, its hands holding what they hold (taking
+    /// hold at the plan's start only where `step` would) and its material
+    /// in force. Keywords are dm-plan's search options
+    /// (`horizon=30`, `iterations=3`, `exact=True`; `device` defaults to
+    /// the simulation's). The simulation is not advanced: step
+    /// `plan["hands"][1:]` (all of them, or the first few and plan again).
+    /// `progress(stage, done, total)` as in `plan`; Ctrl-C stops the search.
+    #[pyo3(signature = (goal, particles = None, progress = None, **options))]
+    fn plan<'py>(
+        &self,
+        py: Python<'py>,
+        goal: PyArrayLike2<'_, f64, AllowTypeChange>,
+        particles: Option<PyArrayLike1<'_, i64, AllowTypeChange>>,
+        progress: Option<Py<PyAny>>,
+        options: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        guarded("Simulation.plan", || {
+            let points = points_from_array(&goal, "goal")?;
+            let particles = particles
+                .map(|ids| {
+                    ids.as_array()
+                        .iter()
+                        .map(|&i| {
+                            usize::try_from(i).map_err(|_| {
+                                PyValueError::new_err(format!(
+                                    "`particles` holds {i}; particle numbers are ≥ 0"
+                                ))
+                            })
+                        })
+                        .collect::<PyResult<Vec<usize>>>()
+                })
+                .transpose()?;
+            let goal = Goal {
+                name: "points".into(),
+                points,
+                particles,
+            };
+            let mut args = keyword_flags(options)?;
+            let (state, grip, hands, material) = {
+                let mut guard = self.lock()?;
+                let guard = &mut *guard;
+                let simulation = &mut guard.simulation;
+                if !options.is_some_and(|o| o.contains("device").unwrap_or(false)) {
+                    args.extend(["--device".into(), simulation.device().to_string()]);
+                }
+                let all: Vec<usize> = (0..self.model.particles.len()).collect();
+                let (state, mut grip) = py
+                    .detach(|| -> Result<_, dm_model::ModelError> {
+                        let world = simulation.world()?;
+                        Ok((world.state(), world.grip(&all)?))
+                    })
+                    .map_err(model_error)?;
+                // As `step` by default: the hands take hold only when its
+                // next frame grasps.
+                if !guard.grasp_next {
+                    grip.grasped = vec![true; guard.hands.len()];
+                }
+                (state, grip, guard.hands.clone(), guard.material)
+            };
+            let start = LiveStart {
+                state: &state,
+                hands: &hands,
+                grip: &grip,
+                material: &material,
+            };
+            plan_live(py, &self.model, &start, &goal, &args, progress)
         })
     }
 

@@ -388,6 +388,45 @@ def test_planning_refuses_bad_options_and_passes_on_the_callbacks_error(tiny):
         dm.plan(tiny["model"], tiny["scene"], "straighten", progress=interrupted, **SHORT_PLAN)
 
 
+def test_planning_from_a_live_simulation_starts_where_it_is(tiny):
+    bundle = dm.read_bundle(tiny["scene"])
+    model = dm.load_model(tiny["model"])
+    sim = model.simulation(bundle.hand_anchors(0))
+    sim.step_many(hand_path(bundle)[:6])
+    points, particles = model.goal("move", bundle)
+    assert points.shape == (len(particles), 3)
+    before = sim.chamfer_to(points)
+    calls = []
+    plan = sim.plan(
+        points, particles, progress=lambda *call: calls.append(call),
+        horizon=10, samples=4, iterations=2, gradient_iters=2,
+    )
+    assert sim.frame == 6, "planning does not advance the simulation"
+    assert plan["hands"].shape == (11,) + sim.hands.shape
+    assert np.array_equal(plan["hands"][0], sim.hands)
+    assert np.array_equal(plan["planned"][0], sim.positions[plan["planned_particles"]])
+    record = plan["record"]
+    assert record["options"]["horizon"] == 10 and record["options"]["device"] == "cpu"
+    assert record["planned"]["final_chamfer_m"] < record["start"]["final_chamfer_m"]
+    assert {"MPPI", "gradient"} <= {stage for stage, _, _ in calls}
+    sim.step_many(plan["hands"][1:])
+    after = sim.chamfer_to(points)
+    assert after < 0.8 * before, (before, after)
+    # In the model's own world (exact), the plan is what the simulation does.
+    exact = sim.plan(points, particles, exact=True, horizon=4, samples=2, iterations=1, gradient_iters=1)
+    assert np.array_equal(sim.step_many(exact["hands"][1:]), exact["planned"][1:])
+    with pytest.raises(ValueError, match="--plant"):
+        sim.plan(points, particles, plant="truth.json")
+    with pytest.raises(ValueError, match="goal"):
+        sim.plan(points[:, :2])
+    with pytest.raises(ValueError, match="particles"):
+        sim.plan(points, particles[:-1], horizon=4, samples=2, iterations=1)
+    with pytest.raises(ValueError, match="particles"):
+        sim.plan(points, -np.ones_like(particles))
+    with pytest.raises(ValueError, match="knit"):
+        model.goal("knit", bundle)
+
+
 def interrupt_soon():
     """Ctrl-C to this process in 0.1 s, as a terminal or notebook sends it."""
     timer = threading.Timer(0.1, os.kill, args=(os.getpid(), signal.SIGINT))
@@ -424,6 +463,11 @@ def test_ctrl_c_stops_long_calls(tiny, tmp_path):
     timer.join()
     # Stopped inside the search: nothing was written.
     assert not (tmp_path / "plan").exists()
+    points, particles = dm.load_model(tiny["model"]).goal("move", bundle)
+    timer = interrupt_soon()
+    with pytest.raises(KeyboardInterrupt):
+        sim.plan(points, particles, iterations=500, samples=4, horizon=6)
+    timer.join()
 
 
 def test_gymnasium_env_passes_check_env(tiny):
@@ -463,4 +507,18 @@ def test_example_script_writes_its_plot(tiny, tmp_path):
         capture_output=True, text=True,
     )
     assert done.returncode == 0, done.stderr
+    assert out.stat().st_size > 10_000
+
+
+def test_the_control_loop_example_writes_its_plot(tiny, tmp_path):
+    out = tmp_path / "mpc.png"
+    done = subprocess.run(
+        [sys.executable, str(REPO / "examples/python/mpc.py"),
+         str(tiny["model"]), str(tiny["scene"]), "--goal", "move", "--out", str(out),
+         "--frames", "8", "--every", "4", "--samples", "4", "--iterations", "1",
+         "--gradient-iters", "1"],
+        capture_output=True, text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "re-planned 2 times" in done.stdout, done.stdout
     assert out.stat().st_size > 10_000

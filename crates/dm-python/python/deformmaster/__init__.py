@@ -35,6 +35,7 @@ from ._native import (
     split_frames,
 )
 from ._native import fit_from_args as _fit_from_args
+from ._native import flags as _flags
 from ._native import plan_from_args as _plan_from_args
 from ._native import write_bundle_arrays as _write_bundle_arrays
 
@@ -174,16 +175,3 @@ def fit(bundle, out, resume=False, stop_after=None, progress=None, **options):
         stop_after=stop_after,
         progress=progress,
     )
-
-
-def _flags(options):
-    """Keyword options as a tool's flags: ``_`` for ``-``, ``True`` a bare
-    flag, ``False`` and ``None`` left out."""
-    args = []
-    for key, value in options.items():
-        flag = "--" + key.replace("_", "-")
-        if value is True:
-            args.append(flag)
-        elif value is not False and value is not None:
-            args += [flag, str(value)]
-    return args

@@ -986,14 +986,13 @@ fn world_rejects_bad_inputs() {
     ));
 }
 
-/// A released world keeps its particle state and no hand holds it: it
-/// steps without anchors (a held world refuses to) and, bit for bit, as a
-/// world that never grasped, built from the same state.
-#[test]
-fn a_released_world_steps_as_one_that_never_grasped() {
+/// A block of `length` × 4 × 4 particles 2 cm apart above the floor of a
+/// unit volumetric domain, with the default hands: (physics, particles,
+/// actuators, particle volume).
+fn small_block(length: usize) -> (PhysicsConfig, Vec<[f64; 3]>, ActuatorConfig, f64) {
     let config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
     let mut points = Vec::new();
-    for i in 0..4 {
+    for i in 0..length {
         for j in 0..4 {
             for k in 0..4 {
                 points.push([
@@ -1004,10 +1003,17 @@ fn a_released_world_steps_as_one_that_never_grasped() {
             }
         }
     }
+    (config, points, ActuatorConfig::default(), 0.02f64.powi(3))
+}
+
+/// A released world keeps its particle state and no hand holds it: it
+/// steps without anchors (a held world refuses to) and, bit for bit, as a
+/// world that never grasped, built from the same state.
+#[test]
+fn a_released_world_steps_as_one_that_never_grasped() {
+    let (config, points, act, volume) = small_block(4);
     let n = points.len();
     let material = || ParticleMaterial::<f32>::uniform(n, 1e5, 0.3, [1.0, 0.0, 0.0]);
-    let act = ActuatorConfig::default();
-    let volume = 0.02f64.powi(3);
     let mut held = World::new(config.clone(), &points, volume, material(), act).expect("world");
     let hand = [0.48, 0.48, 0.26];
     let raised = [0.48, 0.48, 0.30];
@@ -1036,23 +1042,9 @@ fn a_released_world_steps_as_one_that_never_grasped() {
 /// 1.5e-8 m); a coupling on the wrong particle moves it by millimetres.
 #[test]
 fn a_world_given_another_worlds_grip_steps_as_that_world() {
-    let config = PhysicsConfig::volumetric([0.0; 3], 1.0, [0.0, 0.0, 1.0]);
-    let mut points = Vec::new();
-    for i in 0..5 {
-        for j in 0..4 {
-            for k in 0..4 {
-                points.push([
-                    0.45 + 0.02 * i as f64,
-                    0.45 + 0.02 * j as f64,
-                    0.2 + 0.02 * k as f64,
-                ]);
-            }
-        }
-    }
+    let (config, points, act, volume) = small_block(5);
     let n = points.len();
     let material = || ParticleMaterial::<f32>::uniform(n, 1e5, 0.3, [1.0, 0.0, 0.0]);
-    let act = ActuatorConfig::default();
-    let volume = 0.02f64.powi(3);
     let mut held = World::new(config.clone(), &points, volume, material(), act).expect("world");
     let hands = [[0.46, 0.48, 0.26], [0.52, 0.48, 0.26]];
     let raised = [[0.46, 0.48, 0.30], [0.53, 0.48, 0.31]];

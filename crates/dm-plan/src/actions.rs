@@ -32,6 +32,14 @@ impl Workspace {
     pub fn clamp(&self, p: [f64; 3]) -> [f64; 3] {
         std::array::from_fn(|a| p[a].clamp(self.lo[a], self.hi[a]))
     }
+
+    /// The part of this box inside the box `[lo, hi]`.
+    pub fn within(&self, lo: [f64; 3], hi: [f64; 3]) -> Self {
+        Self {
+            lo: std::array::from_fn(|a| self.lo[a].max(lo[a])),
+            hi: std::array::from_fn(|a| self.hi[a].min(hi[a])),
+        }
+    }
 }
 
 impl ActionPlan {

@@ -13,12 +13,12 @@ use dm_play::PlayOptions;
 use dm_play::session::MaterialControl;
 use serde::Serialize;
 
-use crate::actions::{ActionPlan, Workspace};
-use crate::cost::{CostWeights, Scores, TerminalCost};
+use crate::actions::ActionPlan;
+use crate::cost::Scores;
 use crate::goal::Goal;
 use crate::options::SearchOptions;
 use crate::run::{History, PlanningWorldRecord, Progress, initial_plan, workspace};
-use crate::search::Search;
+use crate::search::{Search, goal_cost};
 use crate::world::{PlanningModel, rollout};
 use crate::{PlanError, invalid};
 
@@ -186,24 +186,9 @@ pub fn plan_from_state(
         planning.nearest_particles(&rest)
     });
     let (up, floor) = up_and_floor(model);
-    let workspace = {
-        let w = workspace(&positions, options.workspace_margin_m, up, floor);
-        let (lo, hi) = planning.interior();
-        Workspace {
-            lo: std::array::from_fn(|a| w.lo[a].max(lo[a])),
-            hi: std::array::from_fn(|a| w.hi[a].min(hi[a])),
-        }
-    };
-    let weights = CostWeights {
-        max_speed_m_s: options.max_speed,
-        ..CostWeights::default()
-    };
-    let cost = TerminalCost::new(
-        goal.points.clone(),
-        correspondences.clone(),
-        planning.surface_count(),
-        weights,
-    );
+    let (lo, hi) = planning.interior();
+    let workspace = workspace(&positions, options.workspace_margin_m, up, floor).within(lo, hi);
+    let (weights, cost) = goal_cost(options, &planning, goal, correspondences.clone());
     let first = initial_plan(
         start.hands,
         goal,
@@ -212,15 +197,7 @@ pub fn plan_from_state(
         options.knots,
         options.horizon,
     );
-    let mut search = Search {
-        options,
-        planning: &planning,
-        cost: &cost,
-        weights,
-        workspace,
-        rollouts: 0,
-        history: History::default(),
-    };
+    let mut search = Search::new(options, &planning, &cost, weights, workspace);
     let plan = search.search(
         &first,
         Some(&state),
@@ -242,12 +219,7 @@ pub fn plan_from_state(
         rollouts: search.rollouts,
         seconds: clock.elapsed().as_secs_f64(),
         history: search.history.clone(),
-        planning_world: PlanningWorldRecord {
-            particles: planned_particles.len(),
-            grid: world.config().grid_res,
-            substeps_per_frame: world.config().substeps_per_frame,
-            grasp_radius_m: planning.grasp_radius(),
-        },
+        planning_world: PlanningWorldRecord::of(&planning, &world),
         actions: plan.clone(),
     };
     Ok(LivePlan {

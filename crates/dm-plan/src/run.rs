@@ -18,12 +18,12 @@ use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
 use crate::actions::{ActionPlan, Workspace};
-use crate::cost::{CostWeights, Scores, TerminalCost, scores};
+use crate::cost::{Scores, scores};
 use crate::goal::Goal;
 pub use crate::options::{Optimizer, PlanOptions, SearchOptions};
 pub use crate::output::write_outputs;
 use crate::plant::Plant;
-use crate::search::{Search, shifted};
+use crate::search::{Search, goal_cost, shifted};
 use crate::world::{PlanningModel, PlanningWorld, rollout};
 use crate::{PlanError, invalid, keep_going};
 
@@ -66,6 +66,17 @@ pub struct PlanningWorldRecord {
     pub grid: usize,
     pub substeps_per_frame: usize,
     pub grasp_radius_m: f64,
+}
+
+impl PlanningWorldRecord {
+    pub(crate) fn of(planning: &PlanningModel, world: &PlanningWorld<f32>) -> Self {
+        Self {
+            particles: planning.particles().len(),
+            grid: world.config().grid_res,
+            substeps_per_frame: world.config().substeps_per_frame,
+            grasp_radius_m: planning.grasp_radius(),
+        }
+    }
 }
 
 /// Progress: (stage, done, total); `Break` stops the run with
@@ -465,20 +476,15 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         }
         _ => rest_goal,
     };
-    let workspace = {
-        let w = workspace(
-            &start_positions,
-            options.search.workspace_margin_m,
-            up,
-            floor,
-        );
-        // Never beyond the plant's domain.
-        let (lo, hi) = bounds(&reach);
-        Workspace {
-            lo: std::array::from_fn(|a| w.lo[a].max(lo[a])),
-            hi: std::array::from_fn(|a| w.hi[a].min(hi[a])),
-        }
-    };
+    // Never beyond the plant's domain.
+    let (lo, hi) = bounds(&reach);
+    let workspace = workspace(
+        &start_positions,
+        options.search.workspace_margin_m,
+        up,
+        floor,
+    )
+    .within(lo, hi);
     let grasps = grasp_points(
         options,
         &bundle,
@@ -492,25 +498,8 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             "no grasp point found: the goal has no correspondences and the bundle no hands",
         ));
     }
-    let weights = CostWeights {
-        max_speed_m_s: options.search.max_speed,
-        ..CostWeights::default()
-    };
-    let cost = TerminalCost::new(
-        goal.points.clone(),
-        correspondences.clone(),
-        planning.surface_count(),
-        weights,
-    );
-    let mut search = Search {
-        options: &options.search,
-        planning: &planning,
-        cost: &cost,
-        weights,
-        workspace,
-        rollouts: 0,
-        history: History::default(),
-    };
+    let (weights, cost) = goal_cost(&options.search, &planning, &goal, correspondences.clone());
+    let mut search = Search::new(&options.search, &planning, &cost, weights, workspace);
     let first = initial_plan(
         &grasps,
         &goal,
@@ -607,12 +596,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         seconds: clock.elapsed().as_secs_f64(),
         replans,
         history: search.history.clone(),
-        planning_world: PlanningWorldRecord {
-            particles: planning.particles().len(),
-            grid: planning_world.config().grid_res,
-            substeps_per_frame: planning_world.config().substeps_per_frame,
-            grasp_radius_m: planning.grasp_radius(),
-        },
+        planning_world: PlanningWorldRecord::of(&planning, &planning_world),
         actions: initial_plan_record,
     };
     Ok(RunResult {

@@ -6,6 +6,7 @@ use dm_mpm::state::Particles;
 use crate::PlanError;
 use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, TerminalCost};
+use crate::goal::Goal;
 use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
 use crate::options::{Optimizer, SearchOptions};
@@ -23,7 +24,25 @@ pub(crate) struct Search<'a> {
     pub(crate) history: History,
 }
 
-impl Search<'_> {
+impl<'a> Search<'a> {
+    pub(crate) fn new(
+        options: &'a SearchOptions,
+        planning: &'a PlanningModel,
+        cost: &'a TerminalCost,
+        weights: CostWeights,
+        workspace: Workspace,
+    ) -> Self {
+        Self {
+            options,
+            planning,
+            cost,
+            weights,
+            workspace,
+            rollouts: 0,
+            history: History::default(),
+        }
+    }
+
     /// The cost of a plan rolled out from `start` (the first frame when None).
     fn evaluate(
         &self,
@@ -111,6 +130,27 @@ impl Search<'_> {
         }
         Ok(best)
     }
+}
+
+/// The cost a search minimises: distance to `goal` (with its
+/// correspondences in planning-world particles) and the plan's penalties.
+pub(crate) fn goal_cost(
+    options: &SearchOptions,
+    planning: &PlanningModel,
+    goal: &Goal,
+    correspondences: Option<Vec<usize>>,
+) -> (CostWeights, TerminalCost) {
+    let weights = CostWeights {
+        max_speed_m_s: options.max_speed,
+        ..CostWeights::default()
+    };
+    let cost = TerminalCost::new(
+        goal.points.clone(),
+        correspondences,
+        planning.surface_count(),
+        weights,
+    );
+    (weights, cost)
 }
 
 /// The rest of `plan` from frame `t`, with the hands where they are then

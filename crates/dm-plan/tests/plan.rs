@@ -336,6 +336,63 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
     );
 }
 
+/// A simulation of `model` stepped `steps` frames along the clip, and what
+/// a plan from there starts with.
+struct Stepped {
+    simulation: dm_model::Simulation,
+    state: dm_mpm::state::Particles<f32>,
+    hands: Vec<[f64; 3]>,
+    grip: dm_mpm::actuators::Grip,
+    material: dm_play::MaterialControl,
+}
+
+impl Stepped {
+    fn start(&self) -> dm_plan::live::LiveStart<'_> {
+        dm_plan::live::LiveStart {
+            state: &self.state,
+            hands: &self.hands,
+            grip: &self.grip,
+            material: &self.material,
+        }
+    }
+}
+
+fn stepped(model: &WorldModel, bundle: &Bundle, steps: usize) -> Stepped {
+    let mut simulation = model.simulation().expect("simulation");
+    for t in 0..steps {
+        let (from, to, grasp) = dm_model::hand_step(bundle, t);
+        simulation.step(&from, &to, &grasp).expect("step");
+    }
+    let world = simulation.world().expect("world");
+    let all: Vec<usize> = (0..model.particles.len()).collect();
+    let (state, grip) = (world.state(), world.grip(&all).expect("grip"));
+    Stepped {
+        simulation,
+        state,
+        hands: dm_model::hand_anchors(bundle, steps),
+        grip,
+        material: dm_play::MaterialControl {
+            e_scale: 1.0,
+            nu: None,
+            damping: model.physics.particle_damping,
+        },
+    }
+}
+
+/// The goal `name` made from the model's first frame in the bundle's scene.
+fn named_goal(name: &str, bundle: &Bundle, model: &WorldModel) -> Goal {
+    let meta = &bundle.meta;
+    Goal::named(
+        name,
+        meta.category,
+        &model.particles,
+        model.surface_count,
+        meta.up_axis.unit_vector(),
+        meta.floor_height_m,
+    )
+    .expect("goal")
+}
+
 /// A plan from a simulation stepped part way through its clip starts
 /// exactly where the simulation is (its hands, its particles' state), and
 /// stepping the simulation along the planned anchors brings the object
@@ -344,29 +401,8 @@ fn a_plan_from_a_later_start_begins_where_the_clip_leaves_the_object() {
 fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_goal() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, model) = tiny(dir.path(), Preset::Rope, 5, ResidualKind::None);
-    let mut simulation = model.simulation().expect("simulation");
-    let steps = 4;
-    for t in 0..steps {
-        let (from, to, grasp) = dm_model::hand_step(&bundle, t);
-        simulation.step(&from, &to, &grasp).expect("step");
-    }
-    let state = simulation.world().expect("world").state();
-    let hands = dm_model::hand_anchors(&bundle, steps);
-    let material = dm_play::MaterialControl {
-        e_scale: 1.0,
-        nu: None,
-        damping: model.physics.particle_damping,
-    };
-    let meta = &bundle.meta;
-    let goal = Goal::named(
-        "move",
-        meta.category,
-        &model.particles,
-        model.surface_count,
-        meta.up_axis.unit_vector(),
-        meta.floor_height_m,
-    )
-    .expect("goal");
+    let mut live = stepped(&model, &bundle, 4);
+    let goal = named_goal("move", &bundle, &model);
     let options = dm_plan::run::SearchOptions {
         horizon: 10,
         samples: 4,
@@ -374,22 +410,18 @@ fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_go
         gradient_iters: 2,
         ..small_search()
     };
-    let all: Vec<usize> = (0..model.particles.len()).collect();
-    let grip = simulation.world().expect("world").grip(&all).expect("grip");
-    let start = dm_plan::live::LiveStart {
-        state: &state,
-        hands: &hands,
-        grip: &grip,
-        material: &material,
-    };
-    let plan = dm_plan::live::plan_from_state(&model, &start, &goal, &options, &mut |_, _, _| {
-        ControlFlow::Continue(())
-    })
-    .expect("plan");
+    let plan =
+        dm_plan::live::plan_from_state(&model, &live.start(), &goal, &options, &mut |_, _, _| {
+            ControlFlow::Continue(())
+        })
+        .expect("plan");
     assert_eq!(plan.hands.len(), options.horizon + 1);
-    assert_eq!(plan.hands[0], hands, "the plan starts where the hands are");
+    assert_eq!(
+        plan.hands[0], live.hands,
+        "the plan starts where the hands are"
+    );
     for (p, &i) in plan.planned_particles.iter().enumerate() {
-        let now = [0, 1, 2].map(|a| f64::from(state.x[i][a]));
+        let now = [0, 1, 2].map(|a| f64::from(live.state.x[i][a]));
         assert_eq!(plan.planned[0][p], now, "planning particle {p} (model {i})");
     }
     let surface_scores = |positions: &[[f32; 3]]| {
@@ -401,14 +433,14 @@ fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_go
             goal.particles.as_deref(),
         )
     };
-    let before = surface_scores(&simulation.positions_f32().expect("positions"));
+    let before = surface_scores(&live.simulation.positions_f32().expect("positions"));
     for t in 0..options.horizon {
-        let grasp = vec![false; hands.len()];
-        simulation
+        let grasp = vec![false; live.hands.len()];
+        live.simulation
             .step(&plan.hands[t], &plan.hands[t + 1], &grasp)
             .expect("step");
     }
-    let after = surface_scores(&simulation.positions_f32().expect("positions"));
+    let after = surface_scores(&live.simulation.positions_f32().expect("positions"));
     assert!(
         after.final_chamfer_m < 0.8 * before.final_chamfer_m,
         "Chamfer to the goal {:.4} m before, {:.4} m after the plan",
@@ -465,29 +497,8 @@ fn the_planning_world_steps_in_the_material_it_is_given() {
 fn an_exact_plan_is_what_the_simulation_then_does() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, model) = tiny(dir.path(), Preset::Rope, 7, ResidualKind::None);
-    let mut simulation = model.simulation().expect("simulation");
-    let steps = 3;
-    for t in 0..steps {
-        let (from, to, grasp) = dm_model::hand_step(&bundle, t);
-        simulation.step(&from, &to, &grasp).expect("step");
-    }
-    let state = simulation.world().expect("world").state();
-    let hands = dm_model::hand_anchors(&bundle, steps);
-    let material = dm_play::MaterialControl {
-        e_scale: 1.0,
-        nu: None,
-        damping: model.physics.particle_damping,
-    };
-    let meta = &bundle.meta;
-    let goal = Goal::named(
-        "u-shape",
-        meta.category,
-        &model.particles,
-        model.surface_count,
-        meta.up_axis.unit_vector(),
-        meta.floor_height_m,
-    )
-    .expect("goal");
+    let mut live = stepped(&model, &bundle, 3);
+    let goal = named_goal("u-shape", &bundle, &model);
     let options = dm_plan::run::SearchOptions {
         horizon: 5,
         samples: 2,
@@ -496,25 +507,19 @@ fn an_exact_plan_is_what_the_simulation_then_does() {
         exact: true,
         ..small_search()
     };
-    let all: Vec<usize> = (0..model.particles.len()).collect();
-    let grip = simulation.world().expect("world").grip(&all).expect("grip");
-    let start = dm_plan::live::LiveStart {
-        state: &state,
-        hands: &hands,
-        grip: &grip,
-        material: &material,
-    };
-    let plan = dm_plan::live::plan_from_state(&model, &start, &goal, &options, &mut |_, _, _| {
-        ControlFlow::Continue(())
-    })
-    .expect("plan");
+    let plan =
+        dm_plan::live::plan_from_state(&model, &live.start(), &goal, &options, &mut |_, _, _| {
+            ControlFlow::Continue(())
+        })
+        .expect("plan");
     assert_eq!(plan.planned_particles.len(), model.particles.len());
     for t in 0..options.horizon {
-        let grasp = vec![false; hands.len()];
-        simulation
+        let grasp = vec![false; live.hands.len()];
+        live.simulation
             .step(&plan.hands[t], &plan.hands[t + 1], &grasp)
             .expect("step");
-        let done: Vec<[f64; 3]> = simulation
+        let done: Vec<[f64; 3]> = live
+            .simulation
             .positions_f32()
             .expect("positions")
             .iter()

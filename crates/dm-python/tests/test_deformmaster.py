@@ -236,6 +236,12 @@ assert [sim.device for sim in sims.values()] == ["cpu", "cuda"]
 for t in range(1, 4):
     for sim in sims.values():
         sim.step(bundle.hand_anchors(t))
+points, particles = model.goal("move", bundle)
+# MPPI only: Adam's first step is ±1 step per knot whatever the gradient's
+# size, so a gradient near 0 could step either way on the two devices.
+plans = {d: sim.plan(points, particles, horizon=3, knots=1, samples=2, iterations=1,
+                     gradient_iters=0) for d, sim in sims.items()}
+assert [p["record"]["options"]["device"] for p in plans.values()] == ["cpu", "cuda"]
 from deformmaster.env import TwinEnv
 envs = {d: TwinEnv(model, bundle, max_steps=3, device=d) for d in ("cpu", "cuda")}
 seen = {}
@@ -246,7 +252,9 @@ for d, env in envs.items():
         seen[d], *_ = env.step(np.full(env.action_space.shape, 0.004, np.float32))
 np.savez(out, cpu=sims["cpu"].positions, gpu=sims["cuda"].positions,
          rollout_cpu=model.rollout(bundle, frames=4), rollout_gpu=model.rollout(bundle, frames=4, device="cuda"),
-         env_cpu=seen["cpu"], env_gpu=seen["cuda"])
+         env_cpu=seen["cpu"], env_gpu=seen["cuda"],
+         plan_cpu=plans["cpu"]["planned"], plan_gpu=plans["cuda"]["planned"],
+         hands_cpu=plans["cpu"]["hands"], hands_gpu=plans["cuda"]["hands"])
 """
     out = tmp_path / "positions.npz"
     # The driver is chosen when the process starts: the GPU runs in a child.
@@ -258,7 +266,9 @@ np.savez(out, cpu=sims["cpu"].positions, gpu=sims["cuda"].positions,
     assert done.returncode == 0, done.stderr
     saved = np.load(out)
     assert saved["rollout_gpu"].shape == saved["rollout_cpu"].shape
-    for cpu, gpu in (("cpu", "gpu"), ("rollout_cpu", "rollout_gpu"), ("env_cpu", "env_gpu")):
+    pairs = ("cpu", "gpu"), ("rollout_cpu", "rollout_gpu"), ("env_cpu", "env_gpu"), \
+        ("plan_cpu", "plan_gpu"), ("hands_cpu", "hands_gpu")
+    for cpu, gpu in pairs:
         difference = np.abs(saved[cpu].astype(np.float64) - saved[gpu]).max()
         assert difference <= GPU_POSITION_TOLERANCE_M, (cpu, difference)
 

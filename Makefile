@@ -81,6 +81,7 @@ demo: build
 	@python3 -c 'import json; d=json.load(open("$(OUT)/diagnose/diagnosis.json")).get("detectability") or {}; r=["%s %s %.3g %s" % (n, "<=" if l["stronger"] == "below" else ">=", l["min_magnitude"], l["unit"]) for n, l in d.items() if l["min_magnitude"] is not None]; u=[n for n, l in d.items() if l["min_magnitude"] is None]; print("limits       : this clip reveals %s; cannot test %s" % (", ".join(r) or "nothing", ", ".join(u) or "nothing")) if d else None' || true
 	@python3 -c 'import json; p=json.load(open("$(OUT)/plan/plan.json")); print("plan         : goal %s, Chamfer to it %.1f mm at the start -> %.1f planned -> %.1f mm carried out in the truth world (%.0f s); $(OUT)/plan/video/render.mp4" % (p["goal"]["name"], 1e3*p["start"]["final_chamfer_m"], 1e3*p["planned"]["final_chamfer_m"], 1e3*p["executed"]["final_chamfer_m"], p["seconds"]))' || true
 	@echo "python       : make python, then .venv-python/bin/python examples/python/rollout.py $(OUT)/model $(OUT)/scene"
+	@echo "               (or examples/python/mpc.py: re-planning from the simulation every 20 frames)"
 	@echo "pictures     : $(OUT)/sim/preview.png  $(OUT)/untrained/preview.png  $(OUT)/model/loss_curve.png"
 	@echo "               $(OUT)/diagnose/error_vs_time.png  $(OUT)/diagnose/candidates.png  $(OUT)/diagnose/error_map.png"
 

@@ -515,7 +515,11 @@ impl PySimulation {
                 let mut guard = self.lock()?;
                 let guard = &mut *guard;
                 let simulation = &mut guard.simulation;
-                if !options.is_some_and(|o| o.contains("device").unwrap_or(false)) {
+                let device_given = match options {
+                    Some(o) => o.get_item("device")?.is_some_and(|d| !d.is_none()),
+                    None => false,
+                };
+                if !device_given {
                     args.extend(["--device".into(), simulation.device().to_string()]);
                 }
                 let all: Vec<usize> = (0..self.model.particles.len()).collect();

@@ -552,6 +552,22 @@ impl WorldModel {
         device: device::Device,
         on_frame: &mut dyn FnMut(usize),
     ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
+        self.rollout_while(bundle, frames, device, &mut |t| {
+            on_frame(t);
+            std::ops::ControlFlow::Continue(())
+        })
+    }
+
+    /// [`WorldModel::rollout_on`] that stops early, with the frames so far,
+    /// where `on_frame` (called after each frame with the frames done)
+    /// breaks.
+    pub fn rollout_while(
+        &self,
+        bundle: &Bundle,
+        frames: usize,
+        device: device::Device,
+        on_frame: &mut dyn FnMut(usize) -> std::ops::ControlFlow<()>,
+    ) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         let frames = frames.min(bundle.frame_count());
         let mut simulation = self.simulation_on(device)?;
         let mut out = vec![simulation.positions_f32()?];
@@ -559,7 +575,9 @@ impl WorldModel {
             let (from, to, grasp) = self.hand_step(bundle, t);
             simulation.step(&from, &to, &grasp)?;
             out.push(simulation.positions_f32()?);
-            on_frame(t + 1);
+            if on_frame(t + 1).is_break() {
+                break;
+            }
         }
         Ok(out)
     }

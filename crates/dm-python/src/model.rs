@@ -219,7 +219,7 @@ impl PyModel {
 
     /// Open-loop rollout driven by the bundle's hand track, as dm-sim runs
     /// it: positions of every frame, (T, N, 3) float32. `device` as in
-    /// `simulation`.
+    /// `simulation`. Ctrl-C stops it between frames.
     #[pyo3(signature = (bundle, frames = None, device = "cpu"))]
     fn rollout<'py>(
         &self,
@@ -233,9 +233,22 @@ impl PyModel {
             let frames = frames.unwrap_or(bundle.inner.frame_count());
             let model = &self.model;
             let b = &bundle.inner;
+            let mut interrupts = Interrupts::new(py)?;
+            let mut stopped = None;
             let rollout = py
-                .detach(|| model.rollout_on(b, frames, device, &mut |_| {}))
+                .detach(|| {
+                    model.rollout_while(b, frames, device, &mut |_| match interrupts.check() {
+                        Ok(()) => std::ops::ControlFlow::Continue(()),
+                        Err(interrupt) => {
+                            stopped = Some(interrupt);
+                            std::ops::ControlFlow::Break(())
+                        }
+                    })
+                })
                 .map_err(model_error)?;
+            if let Some(interrupt) = stopped {
+                return Err(interrupt);
+            }
             frames_to_array(py, &rollout)
         })
     }

@@ -504,6 +504,20 @@ def test_ctrl_c_stops_long_calls(tiny, tmp_path, ctrl_c_raises):
     with pytest.raises(KeyboardInterrupt):
         sim.plan(points, particles, iterations=500, samples=4, horizon=6)
     timer.join()
+    # A rollout of a long clip: the tiny one played forwards and back.
+    frames = bundle.frame_count
+    order = np.concatenate([np.r_[0:frames, frames - 2 : 0 : -1]] * 30)
+    meta = dict(bundle.meta, frame_count=len(order),
+                split={"train": [0, len(order) - 5], "test": [len(order) - 5, len(order)]})
+    long_clip = dm.write_bundle(
+        tmp_path / "long", meta, {k: v[order] for k, v in bundle.tracks.items()},
+        bundle.particles,
+        [{k: v[order] for k, v in bundle.images(c).items()} for c in range(bundle.camera_count)],
+    )
+    timer = interrupt_soon()
+    with pytest.raises(KeyboardInterrupt):
+        dm.load_model(tiny["model"]).rollout(long_clip)
+    timer.join()
 
 
 def test_gymnasium_env_passes_check_env(tiny):

@@ -22,20 +22,23 @@ pub fn cube_domain_containing(
 }
 
 impl PhysicsConfig {
+    /// The box particles stay in, `(lo, hi)`: the domain inside its
+    /// position clip.
+    pub fn interior(&self) -> ([f64; 3], [f64; 3]) {
+        let at = |f: f64| self.domain_origin.map(|o| o + f * self.domain_size);
+        (at(self.position_clip[0]), at(self.position_clip[1]))
+    }
+
     /// This configuration in a cube domain that also holds `points`: the
     /// same grid, so coarser cells where the domain grows; unchanged when
     /// the domain's clipped interior already holds them.
     pub fn with_domain_containing(&self, points: &[[f64; 3]]) -> Self {
-        let origin = self.domain_origin;
-        let inside = |p: &[f64; 3]| {
-            (0..3).all(|a| {
-                p[a] >= origin[a] + self.position_clip[0] * self.domain_size
-                    && p[a] <= origin[a] + self.position_clip[1] * self.domain_size
-            })
-        };
+        let (inner_lo, inner_hi) = self.interior();
+        let inside = |p: &[f64; 3]| (0..3).all(|a| p[a] >= inner_lo[a] && p[a] <= inner_hi[a]);
         if points.iter().all(inside) {
             return self.clone();
         }
+        let origin = self.domain_origin;
         let mut lo = origin;
         let mut hi = origin.map(|o| o + self.domain_size);
         for p in points {

@@ -99,12 +99,9 @@ impl PlanningModel {
         self
     }
 
-    /// The box particles and hands stay in: the domain inside its
-    /// position clip.
+    /// The box particles and hands stay in (`PhysicsConfig::interior`).
     pub fn interior(&self) -> ([f64; 3], [f64; 3]) {
-        let physics = &self.coarse.physics;
-        let at = |f: f64| physics.domain_origin.map(|o| o + f * physics.domain_size);
-        (at(physics.position_clip[0]), at(physics.position_clip[1]))
+        self.coarse.physics.interior()
     }
 
     /// The model particle each planning-world particle stands for.

@@ -154,8 +154,20 @@ impl CudaDevice {
         Ok(match modules.get(&precision) {
             Some(module) => module.clone(),
             None => {
-                let ptx = kernels::compile(precision, &self.arch)?;
-                let module = self.context.load_module(ptx)?;
+                let cache = kernels::cache_dir();
+                let ptx = kernels::compile_cached(precision, &self.arch, cache.as_deref())?;
+                // A cached file the driver refuses (changed by hand, or
+                // written for another driver) is replaced by a fresh compile.
+                let module = match self.context.load_module(ptx) {
+                    Ok(module) => module,
+                    Err(_) if cache.is_some() => {
+                        kernels::forget_cached(precision, &self.arch, cache.as_deref());
+                        let fresh =
+                            kernels::compile_cached(precision, &self.arch, cache.as_deref())?;
+                        self.context.load_module(fresh)?
+                    }
+                    Err(e) => return Err(e.into()),
+                };
                 modules.insert(precision, module.clone());
                 module
             }

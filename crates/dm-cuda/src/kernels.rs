@@ -2,6 +2,7 @@
 
 use crate::error::CudaError;
 use cudarc::nvrtc::{CompileOptions, Ptx};
+use std::path::{Path, PathBuf};
 
 /// The float type a compiled module works in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -134,6 +135,11 @@ pub fn compile(precision: Precision, arch: &str) -> Result<Ptx, CudaError> {
     compile_source(source(precision), precision, arch)
 }
 
+/// The options NVRTC compiles for `arch` with.
+fn compile_options(arch: &str) -> Vec<String> {
+    vec![format!("--gpu-architecture={arch}"), "--std=c++17".into()]
+}
+
 /// Compiles `unit` (the kernels of `precision`, possibly with checks
 /// appended) to PTX for `arch`.
 pub fn compile_source(unit: String, precision: Precision, arch: &str) -> Result<Ptx, CudaError> {
@@ -141,12 +147,115 @@ pub fn compile_source(unit: String, precision: Precision, arch: &str) -> Result<
         return Err(CudaError::NoNvrtc);
     }
     let options = CompileOptions {
-        options: vec![format!("--gpu-architecture={arch}"), "--std=c++17".into()],
+        options: compile_options(arch),
         name: Some(format!("dm_mpm_{}.cu", precision.c_type())),
         ..Default::default()
     };
     cudarc::nvrtc::compile_ptx_with_opts(unit, options).map_err(|e| CudaError::Compile {
         precision: precision.c_type(),
         log: format!("{e:?}"),
+    })
+}
+
+/// The environment variable naming the folder compiled kernels are kept
+/// in between processes (`off` keeps none); by default
+/// `$XDG_CACHE_HOME/deformmaster/cuda`, else `~/.cache/deformmaster/cuda`.
+pub const CACHE_VARIABLE: &str = "DM_CUDA_CACHE";
+
+/// The folder [`CACHE_VARIABLE`] names, or none where it is `off` or no
+/// home is known.
+pub fn cache_dir() -> Option<PathBuf> {
+    match std::env::var_os(CACHE_VARIABLE) {
+        Some(dir) if dir == "off" || dir == "0" => None,
+        Some(dir) if !dir.is_empty() => Some(PathBuf::from(dir)),
+        _ => std::env::var_os("XDG_CACHE_HOME")
+            .filter(|d| !d.is_empty())
+            .map(PathBuf::from)
+            .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache")))
+            .map(|d| d.join("deformmaster").join("cuda")),
+    }
+}
+
+/// NVRTC's version, which the cache key includes: another compiler may
+/// emit other PTX for the same source.
+fn nvrtc_version() -> (i32, i32) {
+    let (mut major, mut minor) = (0, 0);
+    // SAFETY: NVRTC is loaded (checked by the caller); the pointers live
+    // for the call.
+    unsafe { cudarc::nvrtc::sys::nvrtcVersion(&raw mut major, &raw mut minor) };
+    (major, minor)
+}
+
+/// The file the PTX of `unit` for `arch` is kept in under a cache folder:
+/// named by a digest of everything the compiler is given.
+pub fn cache_file(unit: &str, arch: &str) -> String {
+    use sha2::Digest;
+    let mut digest = sha2::Sha256::new();
+    let (major, minor) = nvrtc_version();
+    digest.update(format!("nvrtc {major}.{minor}\n").as_bytes());
+    for option in compile_options(arch) {
+        digest.update(option.as_bytes());
+        digest.update(b"\n");
+    }
+    digest.update(unit.as_bytes());
+    let hex: String = digest
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    format!("dm_mpm_{arch}_{}.ptx", &hex[..32])
+}
+
+/// The kernels of `precision` for `arch` as [`compile`] makes them, read
+/// from `cache` where an earlier process left them there, else compiled
+/// and left there (NVRTC takes seconds for the whole unit). A cache that
+/// cannot be written is skipped with a warning: the kernels still run.
+pub fn compile_cached(
+    precision: Precision,
+    arch: &str,
+    cache: Option<&Path>,
+) -> Result<Ptx, CudaError> {
+    let Some(dir) = cache else {
+        return compile(precision, arch);
+    };
+    if !nvrtc_available() {
+        return Err(CudaError::NoNvrtc);
+    }
+    let unit = source(precision);
+    let path = dir.join(cache_file(&unit, arch));
+    if let Ok(text) = std::fs::read_to_string(&path) {
+        return Ok(Ptx::from_src(text));
+    }
+    let ptx = compile_source(unit, precision, arch)?;
+    if let Err(e) = write_atomically(&path, ptx.to_src().as_bytes()) {
+        eprintln!(
+            "warning: compiled kernels not cached in {} ({e}); set {CACHE_VARIABLE}=off to skip the cache",
+            dir.display()
+        );
+    }
+    Ok(ptx)
+}
+
+/// Removes what [`compile_cached`] keeps for `precision` and `arch` in
+/// `cache`, if anything.
+pub fn forget_cached(precision: Precision, arch: &str, cache: Option<&Path>) {
+    if let Some(dir) = cache {
+        let _ = std::fs::remove_file(dir.join(cache_file(&source(precision), arch)));
+    }
+}
+
+/// Writes `bytes` to `path` under a temporary name, then renames it, so a
+/// process reading the cache never sees half a file.
+fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let temporary = dir.join(format!(
+        ".{}.{}.tmp",
+        path.file_name().and_then(|n| n.to_str()).unwrap_or("ptx"),
+        std::process::id()
+    ));
+    std::fs::write(&temporary, bytes)?;
+    std::fs::rename(&temporary, path).inspect_err(|_| {
+        let _ = std::fs::remove_file(&temporary);
     })
 }

@@ -8,7 +8,7 @@
 //! gripping the flex vertices near it. Every plant can also replay the
 //! clip's own hands, to start a plan where the clip leaves the object.
 
-use dm_model::device::Device;
+use dm_model::device::{Device, DeviceWorld};
 use dm_model::{Simulation, WorldModel};
 use dm_mpm::World;
 use dm_synth::foreign_plant::{MujocoPlant, PlantState};
@@ -30,10 +30,11 @@ pub enum Plant {
         surface_count: usize,
         clip_hands: Vec<Vec<[f64; 3]>>,
     },
-    /// dm-synth's truth world, which of its particles are on the surface,
-    /// and the true hands' anchors per frame of the clip.
+    /// dm-synth's truth world (on the planning device where it can run
+    /// there), which of its particles are on the surface, and the true
+    /// hands' anchors per frame of the clip.
     Truth {
-        world: Box<World<f32>>,
+        world: Box<DeviceWorld<f32>>,
         surface: Vec<bool>,
         clip_hands: Vec<Vec<[f64; 3]>>,
     },
@@ -59,11 +60,28 @@ impl Plant {
         })
     }
 
-    pub fn truth(world: World<f32>, surface: Vec<bool>, clip_hands: Vec<Vec<[f64; 3]>>) -> Self {
-        Plant::Truth {
-            world: Box::new(world),
+    /// The truth `world` on `device`, or on the CPU where it holds what only
+    /// the CPU runs (viscosity, a body force).
+    pub fn truth(
+        world: World<f32>,
+        surface: Vec<bool>,
+        clip_hands: Vec<Vec<[f64; 3]>>,
+        device: Device,
+    ) -> Result<Self, PlanError> {
+        let device = device.for_world(&world);
+        Ok(Plant::Truth {
+            world: Box::new(DeviceWorld::new(world, device)?),
             surface,
             clip_hands,
+        })
+    }
+
+    /// Where the plant's world runs (MuJoCo's on the CPU).
+    pub fn device(&self) -> Device {
+        match self {
+            Plant::Model { simulation, .. } => simulation.device(),
+            Plant::Truth { world, .. } => world.device(),
+            Plant::Foreign { .. } => Device::Cpu,
         }
     }
 
@@ -90,7 +108,7 @@ impl Plant {
         };
         Ok(match self {
             Plant::Model { simulation, .. } => of_world(simulation.world()?),
-            Plant::Truth { world, .. } => of_world(world),
+            Plant::Truth { world, .. } => of_world(world.host()?),
             Plant::Foreign { plant, .. } => plant.state()?,
         })
     }
@@ -171,7 +189,7 @@ impl Plant {
     pub fn release(&mut self) -> Result<(), PlanError> {
         match self {
             Plant::Model { simulation, .. } => simulation.release_grasps()?,
-            Plant::Truth { world, .. } => world.release_grasps(),
+            Plant::Truth { world, .. } => world.edit(World::release_grasps)?,
             Plant::Foreign { plant, .. } => plant.release()?,
         }
         Ok(())

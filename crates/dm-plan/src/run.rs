@@ -41,6 +41,8 @@ pub struct PlanRecord {
     pub start: Scores,
     pub rollouts: usize,
     pub seconds: f64,
+    /// Where `seconds` went.
+    pub seconds_by_stage: StageSeconds,
     pub replans: usize,
     pub history: History,
     pub planning_world: PlanningWorldRecord,
@@ -58,6 +60,16 @@ pub struct GoalRecord {
 pub struct History {
     pub mppi: Vec<f64>,
     pub gradient: Vec<f64>,
+}
+
+/// Seconds spent in MPPI's rollouts, in the gradient refinement, and
+/// carrying the plan out (the plant's frames, the planning world's account
+/// of them, the observations), re-plans included.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageSeconds {
+    pub mppi: f64,
+    pub gradient: f64,
+    pub execute: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -413,7 +425,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
                 Plant::foreign(foreign, clip)
             } else {
                 let (world, surface) = dm_synth::plant_world(&truth, &reach)?;
-                Plant::truth(world, surface, clip)
+                Plant::truth(world, surface, clip, options.search.device)?
             };
             (plant, format!("truth:{}", path.display()))
         }
@@ -546,6 +558,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         } else {
             options.replan_every.min(options.search.horizon - t)
         };
+        let segment_clock = Instant::now();
         for s in 0..segment {
             let (from, to) = (
                 plan.anchors(t - offset + s),
@@ -565,6 +578,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             // Observed: the plant's positions with noise, its velocities;
             // the deformation as the model predicts it.
             let state = observe(&mut plant, &mut tracker, &observed_of, &noise, &mut rng)?;
+            search.seconds.execute += segment_clock.elapsed().as_secs_f64();
             let rest = shifted(&plan, t - offset);
             plan = search.search(
                 &rest,
@@ -578,6 +592,8 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
             tracker = planning.world::<f32>()?;
             tracker.set_state(&state)?;
             replans += 1;
+        } else {
+            search.seconds.execute += segment_clock.elapsed().as_secs_f64();
         }
     }
     let executed_outcome = plant_scores(&mut plant)?;
@@ -594,6 +610,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         start: start_outcome,
         rollouts: search.rollouts,
         seconds: clock.elapsed().as_secs_f64(),
+        seconds_by_stage: search.seconds,
         replans,
         history: search.history.clone(),
         planning_world: PlanningWorldRecord::of(&planning, &planning_world),

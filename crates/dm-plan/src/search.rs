@@ -10,7 +10,7 @@ use crate::goal::Goal;
 use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
 use crate::options::{Optimizer, SearchOptions};
-use crate::run::{History, Progress};
+use crate::run::{History, Progress, StageSeconds};
 use crate::world::{PlanningModel, rollout};
 
 /// The rollouts and cost histories of a run's searches.
@@ -22,6 +22,7 @@ pub(crate) struct Search<'a> {
     pub(crate) workspace: Workspace,
     pub(crate) rollouts: usize,
     pub(crate) history: History,
+    pub(crate) seconds: StageSeconds,
 }
 
 impl<'a> Search<'a> {
@@ -40,6 +41,7 @@ impl<'a> Search<'a> {
             workspace,
             rollouts: 0,
             history: History::default(),
+            seconds: StageSeconds::default(),
         }
     }
 
@@ -97,6 +99,7 @@ impl<'a> Search<'a> {
                 *params = p.params();
             };
             let template = best.clone();
+            let clock = std::time::Instant::now();
             let result = mppi(
                 &|params| self.evaluate(&template.with_params(params), start),
                 &best.params(),
@@ -104,6 +107,7 @@ impl<'a> Search<'a> {
                 &mppi_options,
                 &mut |i, _| progress("MPPI", i, iterations),
             )?;
+            self.seconds.mppi += clock.elapsed().as_secs_f64();
             self.rollouts += result.rollouts;
             self.history.mppi.extend(&result.history);
             best = best.with_params(&result.best);
@@ -114,6 +118,7 @@ impl<'a> Search<'a> {
                 learning_rate_m: o.learning_rate_m,
                 window: o.window,
             };
+            let clock = std::time::Instant::now();
             let refined = refine(
                 self.planning,
                 start,
@@ -124,6 +129,7 @@ impl<'a> Search<'a> {
                 &gradient_options,
                 &mut |i, _| progress("gradient", i, gradient_iters),
             )?;
+            self.seconds.gradient += clock.elapsed().as_secs_f64();
             self.rollouts += refined.rollouts;
             self.history.gradient.extend(&refined.history);
             best = best.with_params(&refined.best);

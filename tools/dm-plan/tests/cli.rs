@@ -105,7 +105,7 @@ const GPU_PLAN_TOLERANCE: f64 = 1e-4;
 /// `dm-plan --device cuda` under the driver's emulator
 /// (crates/dm-cuda/emulator): MPPI's samples side by side on their
 /// streams and the gradient steps through the GPU adjoint give the CPU's
-/// plan to round-off.
+/// plan to round-off, and the truth world carries it out as on the CPU.
 #[test]
 fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -135,6 +135,8 @@ fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
             .args(["--settle-frames", "0", "--no-video"])
             .arg("--bundle")
             .arg(&scene)
+            .arg("--plant")
+            .arg(dir.path().join("t.json"))
             .arg("--out")
             .arg(out);
         dm_cuda::emulator::run_on_device(&mut command, device, &emulator)
@@ -149,10 +151,12 @@ fn plan_on_the_gpu_matches_the_cpu_under_the_emulator() {
         cpu["rollouts"], gpu["rollouts"],
         "another number of rollouts"
     );
+    // The truth world is the plant, on the GPU too.
     for pointer in [
         "/planned/final_chamfer_m",
         "/planned/final_track_m",
         "/start/final_chamfer_m",
+        "/executed/final_chamfer_m",
     ] {
         let value = |record: &serde_json::Value| {
             record

@@ -8,7 +8,7 @@ OUT ?= out/demo
 PRESET ?= toy
 SEED ?= 7
 
-.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-inputs gpu-scene fuzz clean
+.PHONY: setup system-packages lpips build demo pipeline pipeline-video foreign-scene python test bench bench-fit bench-peers bench-python gpu-check gpu-inputs gpu-scene gpu-bin fuzz clean
 
 # The Python with MuJoCo that dm-synth --engine mujoco runs (the setup venv).
 export DM_MUJOCO_PYTHON ?= $(CURDIR)/$(VENV)/bin/python
@@ -277,6 +277,23 @@ gpu-inputs:
 
 gpu-scene: build
 	$(MAKE) gpu-inputs
+
+# gpu-check's binaries for a GPU machine without a Rust toolchain or
+# OpenCV: each tool built without the parts that need OpenCV (dm-plan
+# writes no MP4, dm-synth no raw capture), stripped and packed with the
+# commands of gpu-inputs into GPU_PACK; benches/gpu/device.sh unpacks and
+# runs them there (docs/gpu.md, "Checks").
+GPU_PACK ?= .devbin
+GPU_TOOLS = dm-bench dm-sim dm-eval dm-fit dm-play dm-diagnose
+gpu-bin: setup
+	$(CARGO) build --release $(foreach tool,$(GPU_TOOLS),-p $(tool)-cli)
+	$(CARGO) build --release --no-default-features -p dm-plan-cli -p dm-synth-cli
+	rm -rf $(GPU_PACK) && mkdir -p $(GPU_PACK)/bin
+	for tool in $(GPU_TOOLS) dm-plan dm-synth; do strip -o $(GPU_PACK)/bin/$$tool target/release/$$tool; done
+	@if ldd $(GPU_PACK)/bin/* | grep -i opencv; then echo "error: a packed tool links OpenCV" >&2; exit 1; fi
+	$(MAKE) -s -n gpu-inputs GPU_BIN='$$$$GPU_BIN' GPU_INPUTS='$$$$GPU_INPUTS' GPU_INPUTS_DEVICE=cuda > $(GPU_PACK)/inputs.sh
+	tar -C $(GPU_PACK) -cJf $(GPU_PACK)/bin.tar.xz bin && rm -r $(GPU_PACK)/bin
+	@du -sh $(GPU_PACK)
 
 clean:
 	rm -rf out target $(LPIPS_CACHE) $(VENV) $(PY_VENV)

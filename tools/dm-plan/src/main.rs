@@ -10,6 +10,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 fn main() -> Result<()> {
     let options = PlanOptions::parse();
+    if !cfg!(feature = "video") && !options.no_video {
+        anyhow::bail!(
+            "this dm-plan was built without the `video` feature (OpenCV): pass --no-video, or rebuild with it"
+        );
+    }
     // A bar on a terminal; in a log, a line per search step.
     let terminal = std::io::stderr().is_terminal();
     let bar = if terminal {

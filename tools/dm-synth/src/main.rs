@@ -4,10 +4,9 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use dm_synth::sensor::CaptureSink;
-use dm_synth::{SynthConfig, generate_with_capture};
-use dm_synth_capture::SynthCaptureSink;
+use dm_synth::{Progress, SynthConfig, TruthFile, generate_with_capture};
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -50,18 +49,7 @@ fn main() -> Result<()> {
         }
         bar.set_position(done as u64);
     };
-    let mut capture = cli.capture_out.as_deref().map(SynthCaptureSink::new);
-    let truth = generate_with_capture(
-        &cli.config,
-        &cli.out,
-        &truth_path,
-        capture.as_mut().map(|c| c as &mut dyn CaptureSink),
-        &mut report,
-    )
-    .with_context(|| format!("generating scene into {}", cli.out.display()))?;
-    if let Some(capture) = capture {
-        capture.finish().context("closing the capture")?;
-    }
+    let truth = generate(&cli, &truth_path, &mut report)?;
     bar.finish_and_clear();
     println!(
         "wrote {} ({} preset, action {}, effect {}) and truth {}",
@@ -75,4 +63,33 @@ fn main() -> Result<()> {
         println!("wrote capture {}", dir.display());
     }
     Ok(())
+}
+
+/// The scene, and its raw capture where `--capture-out` asks for one.
+#[cfg(feature = "capture")]
+fn generate(cli: &Cli, truth_path: &Path, report: Progress<'_>) -> Result<TruthFile> {
+    let mut capture = cli
+        .capture_out
+        .as_deref()
+        .map(dm_synth_capture::SynthCaptureSink::new);
+    let sink = capture.as_mut().map(|c| c as &mut dyn CaptureSink);
+    let truth = generate_with_capture(&cli.config, &cli.out, truth_path, sink, report)
+        .with_context(|| format!("generating scene into {}", cli.out.display()))?;
+    if let Some(capture) = capture {
+        capture.finish().context("closing the capture")?;
+    }
+    Ok(truth)
+}
+
+/// The scene; a build without the `capture` feature writes no capture.
+#[cfg(not(feature = "capture"))]
+fn generate(cli: &Cli, truth_path: &Path, report: Progress<'_>) -> Result<TruthFile> {
+    if cli.capture_out.is_some() {
+        anyhow::bail!(
+            "--capture-out: this dm-synth was built without the `capture` feature (OpenCV); rebuild with it"
+        );
+    }
+    let none: Option<&mut dyn CaptureSink> = None;
+    generate_with_capture(&cli.config, &cli.out, truth_path, none, report)
+        .with_context(|| format!("generating scene into {}", cli.out.display()))
 }

@@ -15,7 +15,7 @@ use dm_model::device::{Device, DeviceReal, DeviceWorld};
 use dm_model::residual::ResidualNetwork;
 use dm_mpm::actuators::Grip;
 use dm_mpm::neighbors::PointIndex;
-use dm_mpm::{ActuatorConfig, ActuatorMode, World};
+use dm_mpm::{ActuatorConfig, ActuatorMode};
 use dm_play::PlayOptions;
 use dm_play::session::{CoarseModel, MaterialControl};
 use dm_residual::Precision;
@@ -152,13 +152,9 @@ impl PlanningModel {
     pub fn world<T: DeviceReal>(&self) -> Result<PlanningWorld<T>, PlanError> {
         let mut material = self.coarse.material::<T>(self.e_scale, self.nu);
         self.experts.apply_to(&mut material);
-        let mut world = World::new(
-            self.coarse.physics.clone(),
-            &self.coarse.body.particles,
-            self.coarse.body.particle_volume,
-            material,
-            self.actuator,
-        )?;
+        let mut world = self
+            .coarse
+            .world(self.coarse.physics.clone(), material, self.actuator)?;
         if let Some(grip) = &self.grip {
             world.set_grip(grip)?;
         }

@@ -492,11 +492,25 @@ fn the_planning_world_steps_in_the_material_it_is_given() {
 /// With `exact`, the planning world is the model's own world: a
 /// simulation part way through its clip, stepped along the plan's anchors,
 /// does what was planned, bit for bit — positions, velocities,
-/// deformation, affine velocity and the hands' hold all carried over.
+/// deformation, affine velocity and the hands' hold all carried over, and
+/// the physics a diagnosis added (a stiff ball, a density gradient).
 #[test]
 fn an_exact_plan_is_what_the_simulation_then_does() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let (bundle, model) = tiny(dir.path(), Preset::Rope, 7, ResidualKind::None);
+    let (bundle, mut model) = tiny(dir.path(), Preset::Rope, 7, ResidualKind::None);
+    let centre = model.particles[model.particles.len() / 2];
+    model.extension = dm_model::ModelExtension {
+        stiff_ball: Some(dm_model::extension::StiffBall {
+            centre,
+            radius: 0.05,
+            factor: 6.0,
+        }),
+        density: Some(dm_model::extension::DensityGradient {
+            axis: [1.0, 0.0, 0.0],
+            excess: 0.8,
+        }),
+        ..Default::default()
+    };
     let mut live = stepped(&model, &bundle, 3);
     let goal = named_goal("u-shape", &bundle, &model);
     let options = dm_plan::run::SearchOptions {

@@ -8,8 +8,8 @@ use std::time::Instant;
 #[cfg(feature = "cli")]
 use clap::builder::ArgPredicate;
 use dm_appearance::SplatFollower;
-use dm_model::WorldModel;
 use dm_model::device::{Device, DeviceWorld};
+use dm_model::{ModelExtension, WorldModel};
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::{ActuatorConfig, ActuatorMode, ParticleMaterial, PhysicsConfig, World};
 use serde::{Deserialize, Serialize};
@@ -250,7 +250,8 @@ pub struct Session {
 
 /// The simulation the playground runs of a model (and dm-plan plans in):
 /// the chosen particles, the physics for the chosen grid, substep and CFL
-/// number, and the particles' fitted material fields.
+/// number, the particles' fitted material fields and the model's extension
+/// (a stiff ball, a density gradient, as dm-diagnose adds them).
 #[derive(Clone, Debug)]
 pub struct CoarseModel {
     pub body: Body,
@@ -259,6 +260,10 @@ pub struct CoarseModel {
     pub youngs: Vec<f64>,
     pub poisson: Vec<f64>,
     pub expert_weights: Vec<[f64; 3]>,
+    pub extension: ModelExtension,
+    /// The extension's density factor of each body particle, graded over
+    /// the whole model's extent.
+    pub density_factors: Option<Vec<f64>>,
 }
 
 impl CoarseModel {
@@ -302,20 +307,50 @@ impl CoarseModel {
             youngs: ids.iter().map(|&i| youngs[i]).collect(),
             poisson: ids.iter().map(|&i| poisson[i]).collect(),
             expert_weights: ids.iter().map(|&i| expert_weights[i]).collect(),
+            extension: model.extension.clone(),
+            density_factors: model
+                .extension
+                .density_factors(&model.particles)
+                .map(|factors| ids.iter().map(|&i| factors[i]).collect()),
             body,
             physics,
         })
     }
 
+    /// A world of the body at its first frame in `physics` (this model's,
+    /// possibly changed) and `material`, with the extension's density
+    /// gradient.
+    pub fn world<T: dm_mpm::Real>(
+        &self,
+        physics: PhysicsConfig,
+        material: ParticleMaterial<T>,
+        actuator: ActuatorConfig,
+    ) -> Result<World<T>, dm_mpm::SimError> {
+        let mut world = World::new(
+            physics,
+            &self.body.particles,
+            self.body.particle_volume,
+            material,
+            actuator,
+        )?;
+        if let Some(factors) = &self.density_factors {
+            world.set_density_factors(factors)?;
+        }
+        Ok(world)
+    }
+
     /// The fitted material with every E times `e_scale` and, when given,
-    /// one Poisson ratio `nu` for all.
+    /// one Poisson ratio `nu` for all (the extension's stiff ball included).
     pub fn material<T: dm_mpm::Real>(&self, e_scale: f64, nu: Option<f64>) -> ParticleMaterial<T> {
         let e: Vec<f64> = self.youngs.iter().map(|e| e * e_scale).collect();
         let nu: Vec<f64> = match nu {
             Some(nu) => vec![nu; self.poisson.len()],
             None => self.poisson.clone(),
         };
-        ParticleMaterial::from_fields(&e, &nu, &self.expert_weights)
+        let mut material = ParticleMaterial::from_fields(&e, &nu, &self.expert_weights);
+        self.extension
+            .apply_to_material(&self.body.particles, &mut material);
+        material
     }
 }
 
@@ -331,10 +366,8 @@ impl Session {
         let view = SceneView::new(&coarse.body.particles, &coarse.physics)?;
         // Replaced by `rebuild_world` below (with the material control).
         let world = DeviceWorld::new(
-            World::new(
+            coarse.world(
                 coarse.physics.clone(),
-                &coarse.body.particles,
-                coarse.body.particle_volume,
                 coarse.material(1.0, None),
                 model.actuator,
             )?,
@@ -480,10 +513,8 @@ impl Session {
         } else {
             None
         };
-        let mut world = World::new(
+        let mut world = self.coarse.world(
             physics,
-            &self.coarse.body.particles,
-            self.coarse.body.particle_volume,
             self.particle_material(),
             playground_grasp(&self.model, &self.view),
         )?;

@@ -27,7 +27,8 @@
 # model the plan uses (default the GPU fit of part `fit`). CPU_REFERENCE=0
 # leaves out the runs on the host's cores beside the GPU's; GRAPHS_AB=1
 # also runs the demo's fit and the plan with DM_CUDA_GRAPHS=off (every
-# substep launched kernel by kernel).
+# substep launched kernel by kernel); PLAN_SCALING=1 adds MPPI alone with
+# one sample at a time and with 20 side by side (200 rollouts each).
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -112,12 +113,24 @@ if [ -n "${FIT_SCENE:-}" ]; then
         echo "dm-fit defaults cuda: the whole command took $(python3 -c "import sys; print('%.1f' % (float(sys.argv[2]) - float(sys.argv[1])))" "$started" "$(date +%s.%N)") s"
         python3 -c "$FIT_SUMMARY" "dm-fit defaults cuda" "$OUT_DIR/fit-defaults-cuda/fit_report.json"
     fi
+    PLAN_SUMMARY='import json,sys; r=json.load(open(sys.argv[1])); st=r["seconds_by_stage"]; print("%s: %.1f s (MPPI %.1f, gradient %.1f, execute %.1f), %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm" % (sys.argv[2], r["seconds"], st["mppi"], st["gradient"], st["execute"], r["rollouts"], 1e3*r["start"]["final_chamfer_m"], 1e3*r["planned"]["final_chamfer_m"], 1e3*r["executed"]["final_chamfer_m"]))'
     if part plan && [ -e "$FIT_SCENE.truth.json" ]; then
         for variant in $GPU_VARIANTS $CPU_DEVICE; do
             run env "$(variant_env "$variant")" "$BIN/dm-plan" "${PLAN_MODEL:-$OUT_DIR/fit-cuda}" --bundle "$FIT_SCENE" --goal place \
                 --plant "$FIT_SCENE.truth.json" --no-video --device "$(variant_device "$variant")" --out "$OUT_DIR/plan-$variant"
-            python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('dm-plan %s: %.1f s, %d rollouts, Chamfer start %.1f, planned %.1f, executed %.1f mm' % (sys.argv[2], r['seconds'], r['rollouts'], 1e3*r['start']['final_chamfer_m'], 1e3*r['planned']['final_chamfer_m'], 1e3*r['executed']['final_chamfer_m']))" "$OUT_DIR/plan-$variant/plan.json" "$variant"
+            python3 -c "$PLAN_SUMMARY" "$OUT_DIR/plan-$variant/plan.json" "dm-plan $variant"
         done
+        if [ "${PLAN_SCALING:-0}" = 1 ]; then
+            # MPPI alone, one sample at a time and 20 side by side (as many
+            # rollouts): how far the samples' streams overlap on the GPU.
+            for samples in 1 20; do
+                iterations=$((200 / samples))
+                run "$BIN/dm-plan" "${PLAN_MODEL:-$OUT_DIR/fit-cuda}" --bundle "$FIT_SCENE" --goal place \
+                    --samples "$samples" --iterations "$iterations" --gradient-iters 0 --no-video --device cuda \
+                    --out "$OUT_DIR/plan-mppi-$samples"
+                python3 -c "$PLAN_SUMMARY" "$OUT_DIR/plan-mppi-$samples/plan.json" "dm-plan MPPI $samples x $iterations"
+            done
+        fi
     fi
 fi
 if part diagnose && [ -n "${DIAGNOSE_MODEL:-}" ] && [ -n "${DIAGNOSE_SCENE:-}" ]; then

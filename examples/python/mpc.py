@@ -7,7 +7,9 @@ loop, and plot both.
 The goal is one of the named shapes of the object's category (docs/plan.md),
 due at frame --frames. Every --every frames the hands' motion is planned
 again from where the simulation is, over the frames still left; the open
-loop plans once and carries the whole plan out. The plot shows the Chamfer
+loop plans once and carries the whole plan out. Every hand anchor moves on
+its own, or with --rigid-hands each of the bundle's hands moves its anchors
+together (a gripper's fingers; translation only). The plot shows the Chamfer
 distance to the goal per frame for both, and the object's last frame.
 """
 
@@ -44,6 +46,8 @@ def main():
     parser.add_argument("--samples", type=int, default=10, help="MPPI samples per iteration")
     parser.add_argument("--iterations", type=int, default=3, help="MPPI iterations per plan")
     parser.add_argument("--gradient-iters", type=int, default=3, help="gradient steps per plan")
+    parser.add_argument("--rigid-hands", action="store_true",
+                        help="move each of the bundle's hands as one rigid hand")
     parser.add_argument("--out", default="mpc.png", help="the plot (PNG)")
     args = parser.parse_args()
 
@@ -52,7 +56,8 @@ def main():
     goal = args.goal or DEFAULT_GOALS[bundle.meta["category"]]
     points, particles = model.goal(goal, bundle)
     search = dict(samples=args.samples, iterations=args.iterations,
-                  gradient_iters=args.gradient_iters)
+                  gradient_iters=args.gradient_iters,
+                  rigid_hands=bundle.hand_ranges if args.rigid_hands else None)
 
     clock = time.perf_counter()
     mpc = model.simulation(bundle.hand_anchors(0))

@@ -1,9 +1,11 @@
 //! Hand motions as few numbers: each hand grasps the object at a point and
 //! moves through K knots (offsets from that point) reached at equally
 //! spaced frames of the horizon, with a smoothstep between consecutive
-//! knots (zero velocity at every knot). An anchor's position is linear in
-//! the knots, so a gradient with respect to the anchors of each frame maps
-//! onto the knots through the same weights ([`ActionPlan::knot_weights`]).
+//! knots (zero velocity at every knot). A hand is one anchor, or several
+//! it carries rigidly (a gripper's fingers: fixed offsets from its point).
+//! An anchor's position is linear in the knots, so a gradient with respect
+//! to the anchors of each frame maps onto the knots through the same
+//! weights ([`ActionPlan::knot_weights`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -12,6 +14,26 @@ use serde::{Deserialize, Serialize};
 pub struct HandPlan {
     pub grasp: [f64; 3],
     pub knots: Vec<[f64; 3]>,
+    /// The anchors the hand carries, as offsets from its point (metres;
+    /// none: one anchor at the point).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub offsets: Vec<[f64; 3]>,
+}
+
+impl HandPlan {
+    /// Anchors this hand moves.
+    pub fn anchor_count(&self) -> usize {
+        self.offsets.len().max(1)
+    }
+
+    /// The anchors when the hand's point is at `point`.
+    fn anchors_at(&self, point: [f64; 3]) -> impl Iterator<Item = [f64; 3]> + '_ {
+        let single = self.offsets.is_empty().then_some([0.0; 3]);
+        single
+            .into_iter()
+            .chain(self.offsets.iter().copied())
+            .map(move |o| std::array::from_fn(|a| point[a] + o[a]))
+    }
 }
 
 /// The hands' motion over `horizon` frames (frame 0 is the start).
@@ -51,14 +73,65 @@ impl ActionPlan {
                 .map(|&grasp| HandPlan {
                     grasp,
                     knots: vec![[0.0; 3]; knots],
+                    offsets: Vec::new(),
                 })
                 .collect(),
             horizon,
         }
     }
 
+    /// Rigid hands resting where they are: each range `[start, end)` of
+    /// `anchors` is one hand (its point the anchors' centroid), the ranges
+    /// in order and covering every anchor, so the plan's anchors keep
+    /// `anchors`' order.
+    pub fn rigid_at_rest(
+        anchors: &[[f64; 3]],
+        ranges: &[[usize; 2]],
+        knots: usize,
+        horizon: usize,
+    ) -> Result<Self, String> {
+        let mut next = 0;
+        for &[start, end] in ranges {
+            if start != next || end <= start {
+                return Err(format!(
+                    "hand ranges must be non-empty, in order and contiguous from anchor 0; [{start}, {end}) follows anchor {next}"
+                ));
+            }
+            next = end;
+        }
+        if next != anchors.len() {
+            return Err(format!(
+                "hand ranges cover {next} anchors; the simulation has {}",
+                anchors.len()
+            ));
+        }
+        let hands = ranges
+            .iter()
+            .map(|&[start, end]| {
+                let group = &anchors[start..end];
+                let n = group.len() as f64;
+                let centre: [f64; 3] =
+                    std::array::from_fn(|a| group.iter().map(|p| p[a]).sum::<f64>() / n);
+                HandPlan {
+                    grasp: centre,
+                    knots: vec![[0.0; 3]; knots],
+                    offsets: group
+                        .iter()
+                        .map(|p| std::array::from_fn(|a| p[a] - centre[a]))
+                        .collect(),
+                }
+            })
+            .collect();
+        Ok(Self { hands, horizon })
+    }
+
     pub fn knot_count(&self) -> usize {
         self.hands.first().map_or(0, |h| h.knots.len())
+    }
+
+    /// Anchors the plan moves (each hand's, hand by hand).
+    pub fn anchor_count(&self) -> usize {
+        self.hands.iter().map(HandPlan::anchor_count).sum()
     }
 
     /// The knots flattened hand by hand (the optimisers' parameters).
@@ -114,8 +187,8 @@ impl ActionPlan {
         Vec::new()
     }
 
-    /// Anchor of every hand at `frame`.
-    pub fn anchors(&self, frame: usize) -> Vec<[f64; 3]> {
+    /// Each hand's point at `frame`.
+    pub fn hand_points(&self, frame: usize) -> Vec<[f64; 3]> {
         let weights = self.knot_weights(frame as f64);
         self.hands
             .iter()
@@ -131,19 +204,36 @@ impl ActionPlan {
             .collect()
     }
 
+    /// Every anchor at `frame`, hand by hand.
+    pub fn anchors(&self, frame: usize) -> Vec<[f64; 3]> {
+        self.hand_points(frame)
+            .into_iter()
+            .zip(&self.hands)
+            .flat_map(|(p, h)| h.anchors_at(p))
+            .collect()
+    }
+
     /// Anchors of frames 0..=horizon.
     pub fn path(&self) -> Vec<Vec<[f64; 3]>> {
         (0..=self.horizon).map(|t| self.anchors(t)).collect()
     }
 
-    /// Adds anchor gradients (`per_frame[t][hand]`, frames 0..=horizon) to
-    /// the knots' gradient (as [`Self::params`] orders it).
+    /// Adds anchor gradients (`per_frame[t][anchor]`, frames 0..=horizon,
+    /// anchors as [`Self::anchors`] orders them) to the knots' gradient (as
+    /// [`Self::params`] orders it): a rigid hand's knot collects its
+    /// anchors' gradients.
     pub fn knot_gradient(&self, per_frame: &[Vec<[f64; 3]>]) -> Vec<f64> {
         let k = self.knot_count();
+        let hand_of: Vec<usize> = self
+            .hands
+            .iter()
+            .enumerate()
+            .flat_map(|(h, hand)| std::iter::repeat_n(h, hand.anchor_count()))
+            .collect();
         let mut grad = vec![0.0; self.hands.len() * k * 3];
-        for (t, hands) in per_frame.iter().enumerate() {
+        for (t, anchors) in per_frame.iter().enumerate() {
             for (j, w) in self.knot_weights(t as f64) {
-                for (h, g) in hands.iter().enumerate() {
+                for (&h, g) in hand_of.iter().zip(anchors) {
                     for a in 0..3 {
                         grad[(h * k + j) * 3 + a] += w * g[a];
                     }
@@ -153,13 +243,28 @@ impl ActionPlan {
         grad
     }
 
-    /// Keeps every knot (hence every anchor, a convex combination of the
-    /// grasp point and knots) inside `workspace`.
+    /// Keeps every knot inside `workspace`, shrunk by a rigid hand's
+    /// offsets so that each of its anchors stays inside too (every anchor
+    /// is a convex combination of the hand's grasp point and knots, plus
+    /// its offset). A hand wider than the workspace is centred in it.
     pub fn project(&mut self, workspace: &Workspace) {
         for hand in &mut self.hands {
+            let mut shrunk = *workspace;
+            for o in &hand.offsets {
+                for a in 0..3 {
+                    shrunk.lo[a] = shrunk.lo[a].max(workspace.lo[a] - o[a]);
+                    shrunk.hi[a] = shrunk.hi[a].min(workspace.hi[a] - o[a]);
+                }
+            }
+            for a in 0..3 {
+                if shrunk.lo[a] > shrunk.hi[a] {
+                    let middle = 0.5 * (shrunk.lo[a] + shrunk.hi[a]);
+                    (shrunk.lo[a], shrunk.hi[a]) = (middle, middle);
+                }
+            }
             let grasp = hand.grasp;
             for knot in &mut hand.knots {
-                let p = workspace.clamp(std::array::from_fn(|a| grasp[a] + knot[a]));
+                let p = shrunk.clamp(std::array::from_fn(|a| grasp[a] + knot[a]));
                 *knot = std::array::from_fn(|a| p[a] - grasp[a]);
             }
         }
@@ -211,14 +316,22 @@ mod tests {
 
     #[test]
     fn knot_gradient_is_the_transpose_of_the_anchor_map() {
-        let mut plan = ActionPlan::at_rest(&[[0.0; 3], [1.0, 0.0, 0.0]], 4, 17);
+        let plan = ActionPlan::at_rest(&[[0.0; 3], [1.0, 0.0, 0.0]], 4, 17);
+        check_knot_gradient(plan);
+        // A single anchor and a rigid hand of three.
+        let anchors = [[0.0; 3], [1.0, 0.0, 0.0], [1.1, 0.0, 0.0], [1.0, 0.2, 0.1]];
+        let rigid = ActionPlan::rigid_at_rest(&anchors, &[[0, 1], [1, 4]], 4, 17).expect("ranges");
+        check_knot_gradient(rigid);
+    }
+
+    fn check_knot_gradient(mut plan: ActionPlan) {
         let params: Vec<f64> = (0..plan.params().len())
             .map(|i| (i as f64 * 0.37).sin() * 0.05)
             .collect();
         plan = plan.with_params(&params);
-        let upstream: Vec<Vec<[f64; 3]>> = (0..=17)
+        let upstream: Vec<Vec<[f64; 3]>> = (0..=plan.horizon)
             .map(|t| {
-                (0..2)
+                (0..plan.anchor_count())
                     .map(|h| [t as f64 * 0.1, -(h as f64), 0.5 + t as f64])
                     .collect()
             })
@@ -247,6 +360,67 @@ mod tests {
                 (fd - grad[i]).abs() < 1e-6 * (1.0 + fd.abs()),
                 "param {i}: {fd} vs {}",
                 grad[i]
+            );
+        }
+    }
+
+    /// A rigid hand starts where its anchors are, keeps their offsets at
+    /// every frame, and stays inside the workspace with all of them.
+    #[test]
+    fn a_rigid_hand_moves_its_anchors_together_inside_the_workspace() {
+        let anchors = [
+            [0.0, 0.1, 0.0],
+            [0.04, 0.1, 0.0],
+            [0.3, 0.1, 0.0],
+            [0.3, 0.1, 0.05],
+        ];
+        let mut plan =
+            ActionPlan::rigid_at_rest(&anchors, &[[0, 2], [2, 4]], 2, 10).expect("ranges");
+        assert_eq!(plan.anchor_count(), 4);
+        for (a, b) in plan.anchors(0).iter().zip(&anchors) {
+            assert!(
+                (0..3).all(|c| (a[c] - b[c]).abs() < 1e-15),
+                "{a:?} vs {b:?}"
+            );
+        }
+        plan.hands[0].knots = vec![[0.5, 0.0, 0.0], [0.5, -0.5, 0.0]];
+        plan.hands[1].knots = vec![[0.0, 0.0, 0.2], [-0.1, 0.0, 0.2]];
+        let workspace = Workspace {
+            lo: [-0.1, 0.05, -0.1],
+            hi: [0.4, 0.3, 0.1],
+        };
+        plan.project(&workspace);
+        for t in 0..=plan.horizon {
+            let now = plan.anchors(t);
+            for (h, [start, end]) in [[0, 2], [2, 4]].into_iter().enumerate() {
+                let point = plan.hand_points(t)[h];
+                for i in start..end {
+                    let offset = plan.hands[h].offsets[i - start];
+                    assert!(
+                        (0..3).all(|c| (now[i][c] - point[c] - offset[c]).abs() < 1e-12),
+                        "frame {t}: anchor {i} left its hand"
+                    );
+                    assert!(
+                        (0..3).all(|c| now[i][c] >= workspace.lo[c] - 1e-12
+                            && now[i][c] <= workspace.hi[c] + 1e-12),
+                        "frame {t}: anchor {i} at {:?} outside the workspace",
+                        now[i]
+                    );
+                }
+            }
+        }
+        // The clamp moved the hands as far as the workspace lets every
+        // anchor go: the first hand's second anchor ends on the x limit.
+        assert!((plan.anchors(5)[1][0] - workspace.hi[0]).abs() < 1e-12);
+        for ranges in [
+            &[[0, 2], [3, 4]][..],
+            &[[0, 2]],
+            &[[0, 0], [0, 4]],
+            &[[0, 5]],
+        ] {
+            assert!(
+                ActionPlan::rigid_at_rest(&anchors, ranges, 2, 10).is_err(),
+                "{ranges:?} accepted"
             );
         }
     }

@@ -57,7 +57,7 @@ pub fn cost_and_gradient<T: DeviceReal>(
         world.set_state(state)?;
     }
     let path = plan.path();
-    let hands = plan.hands.len();
+    let hands = plan.anchor_count();
     let mut tapes = Vec::with_capacity(plan.horizon);
     for t in 0..plan.horizon {
         let grasp = vec![t == 0; hands];

@@ -17,7 +17,7 @@ use crate::actions::ActionPlan;
 use crate::cost::Scores;
 use crate::goal::Goal;
 use crate::options::SearchOptions;
-use crate::run::{History, PlanningWorldRecord, Progress, initial_plan, workspace};
+use crate::run::{History, PlanningWorldRecord, Progress, aimed_at_goal, workspace};
 use crate::search::{Search, goal_cost};
 use crate::world::{PlanningModel, rollout};
 use crate::{PlanError, invalid};
@@ -35,6 +35,10 @@ pub struct LiveStart<'a> {
     pub grip: &'a Grip,
     /// The simulation's material (scale on the fitted E, ν, damping).
     pub material: &'a MaterialControl,
+    /// Anchors moved together as rigid hands: ranges `[start, end)` of
+    /// `hands`, in order and covering every anchor (a gripper's fingers,
+    /// a bundle's `hands`); none: every anchor moves on its own.
+    pub rigid_hands: Option<&'a [[usize; 2]]>,
 }
 
 /// The record of a plan from a live state (keys documented in docs/python.md).
@@ -189,14 +193,14 @@ pub fn plan_from_state(
     let (lo, hi) = planning.interior();
     let workspace = workspace(&positions, options.workspace_margin_m, up, floor).within(lo, hi);
     let (weights, cost) = goal_cost(options, &planning, goal, correspondences.clone());
-    let first = initial_plan(
-        start.hands,
-        goal,
-        correspondences.as_deref(),
-        &positions,
-        options.knots,
-        options.horizon,
-    );
+    let at_rest = match start.rigid_hands {
+        Some(ranges) => {
+            ActionPlan::rigid_at_rest(start.hands, ranges, options.knots, options.horizon)
+                .map_err(|problem| invalid("rigid_hands", problem))?
+        }
+        None => ActionPlan::at_rest(start.hands, options.knots, options.horizon),
+    };
+    let first = aimed_at_goal(at_rest, goal, correspondences.as_deref(), &positions);
     let mut search = Search::new(options, &planning, &cost, weights, workspace);
     let plan = search.search(
         &first,

@@ -234,7 +234,24 @@ pub(crate) fn initial_plan(
     knots: usize,
     horizon: usize,
 ) -> ActionPlan {
-    let mut plan = ActionPlan::at_rest(grasps, knots, horizon);
+    aimed_at_goal(
+        ActionPlan::at_rest(grasps, knots, horizon),
+        goal,
+        correspondences,
+        particles,
+    )
+}
+
+/// `plan` (hands at rest) with each hand's knots moving it in a straight
+/// line to the goal point of the particle nearest its grasp, where the
+/// goal has correspondences.
+pub(crate) fn aimed_at_goal(
+    mut plan: ActionPlan,
+    goal: &Goal,
+    correspondences: Option<&[usize]>,
+    particles: &[[f64; 3]],
+) -> ActionPlan {
+    let knots = plan.knot_count();
     if let Some(ids) = correspondences {
         for hand in &mut plan.hands {
             // The goal point of the grasped particle (nearest to the grasp).

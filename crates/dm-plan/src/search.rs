@@ -163,9 +163,12 @@ pub(crate) fn goal_cost(
 /// and its knots where the plan had them (as many, spread over what is left).
 pub(crate) fn shifted(plan: &ActionPlan, t: usize) -> ActionPlan {
     let remaining = plan.horizon - t;
-    let now = plan.anchors(t);
+    let now = plan.hand_points(t);
     let k = plan.knot_count();
     let mut out = ActionPlan::at_rest(&now, k, remaining);
+    for (hand, planned) in out.hands.iter_mut().zip(&plan.hands) {
+        hand.offsets.clone_from(&planned.offsets);
+    }
     for (h, hand) in out.hands.iter_mut().enumerate() {
         for (j, knot) in hand.knots.iter_mut().enumerate() {
             let frame = t as f64 + remaining as f64 * (j + 1) as f64 / k as f64;

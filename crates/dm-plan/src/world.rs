@@ -187,7 +187,7 @@ pub fn rollout<T: DeviceReal>(
     grasp_first: bool,
 ) -> Result<Vec<Vec<[f64; 3]>>, PlanError> {
     let path = plan.path();
-    let hands = plan.hands.len();
+    let hands = plan.anchor_count();
     let mut frames = vec![world.positions()?];
     for t in 0..plan.horizon {
         let grasp = vec![grasp_first && t == 0; hands];

@@ -353,6 +353,7 @@ impl Stepped {
             hands: &self.hands,
             grip: &self.grip,
             material: &self.material,
+            rigid_hands: None,
         }
     }
 }
@@ -399,6 +400,17 @@ fn named_goal(name: &str, bundle: &Bundle, model: &WorldModel) -> Goal {
 /// closer to the goal than it was.
 #[test]
 fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_goal() {
+    live_plan_moves_the_simulation_towards_the_goal(false);
+}
+
+/// The same with each of the bundle's hands moved as one rigid hand: its
+/// anchors keep their offsets at every frame of the plan.
+#[test]
+fn a_live_plan_with_rigid_hands_keeps_each_hand_rigid() {
+    live_plan_moves_the_simulation_towards_the_goal(true);
+}
+
+fn live_plan_moves_the_simulation_towards_the_goal(rigid: bool) {
     let dir = tempfile::tempdir().expect("temp dir");
     let (bundle, model) = tiny(dir.path(), Preset::Rope, 5, ResidualKind::None);
     let mut live = stepped(&model, &bundle, 4);
@@ -410,12 +422,38 @@ fn a_plan_from_a_live_state_starts_there_and_moves_the_simulation_towards_the_go
         gradient_iters: 2,
         ..small_search()
     };
-    let plan =
-        dm_plan::live::plan_from_state(&model, &live.start(), &goal, &options, &mut |_, _, _| {
-            ControlFlow::Continue(())
-        })
-        .expect("plan");
+    let ranges: Vec<[usize; 2]> = bundle.meta.hands.iter().map(|h| h.anchor_range).collect();
+    let start = dm_plan::live::LiveStart {
+        rigid_hands: rigid.then_some(ranges.as_slice()),
+        ..live.start()
+    };
+    let plan = dm_plan::live::plan_from_state(&model, &start, &goal, &options, &mut |_, _, _| {
+        ControlFlow::Continue(())
+    })
+    .expect("plan");
     assert_eq!(plan.hands.len(), options.horizon + 1);
+    if rigid {
+        assert!(
+            ranges.iter().any(|[start, end]| end - start > 1),
+            "the scene's hands are single anchors: {ranges:?}"
+        );
+        for (t, anchors) in plan.hands.iter().enumerate() {
+            for &[start, end] in &ranges {
+                let shift = |i: usize| [0, 1, 2].map(|a| anchors[i][a] - plan.hands[0][i][a]);
+                for i in start + 1..end {
+                    let (first, this) = (shift(start), shift(i));
+                    assert!(
+                        (0..3).all(|a| (first[a] - this[a]).abs() < 1e-12),
+                        "frame {t}: anchor {i} moved {this:?}, its hand's first {first:?}"
+                    );
+                }
+            }
+        }
+        assert!(
+            plan.hands.last() != plan.hands.first(),
+            "the hands did not move"
+        );
+    }
     assert_eq!(
         plan.hands[0], live.hands,
         "the plan starts where the hands are"

@@ -120,6 +120,18 @@ impl PyBundle {
         Ok(d)
     }
 
+    /// Which anchors form each hand: `(start, end)` ranges of the anchors,
+    /// in order (`Simulation.plan(rigid_hands=...)`).
+    #[getter]
+    fn hand_ranges(&self) -> Vec<(usize, usize)> {
+        self.inner
+            .meta
+            .hands
+            .iter()
+            .map(|h| (h.anchor_range[0], h.anchor_range[1]))
+            .collect()
+    }
+
     /// Hand anchor positions of `frame`, (H, 3) float64 metres.
     fn hand_anchors<'py>(
         &self,

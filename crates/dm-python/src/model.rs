@@ -488,18 +488,22 @@ impl PySimulation {
     /// should end at each point, when known, e.g. from `Model.goal`), from
     /// this simulation's state, its hands holding what they hold (taking
     /// hold at the plan's start only where `step` would) and its material
-    /// in force. Keywords are dm-plan's search options
+    /// in force. `rigid_hands`, `(start, end)` ranges of the anchors in
+    /// order (e.g. `Bundle.hand_ranges`), moves each range as one rigid
+    /// hand (a gripper); by default every anchor moves on its own.
+    /// Keywords are dm-plan's search options
     /// (`horizon=30`, `iterations=3`, `exact=True`; `device` defaults to
     /// the simulation's). The simulation is not advanced: step
     /// `plan["hands"][1:]` (all of them, or the first few and plan again).
     /// `progress(stage, done, total)` as in `plan`; Ctrl-C stops the search.
-    #[pyo3(signature = (goal, particles = None, progress = None, **options))]
+    #[pyo3(signature = (goal, particles = None, progress = None, rigid_hands = None, **options))]
     fn plan<'py>(
         &self,
         py: Python<'py>,
         goal: PyArrayLike2<'_, f64, AllowTypeChange>,
         particles: Option<PyArrayLike1<'_, i64, AllowTypeChange>>,
         progress: Option<Py<PyAny>>,
+        rigid_hands: Option<Vec<[usize; 2]>>,
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guarded("Simulation.plan", || {
@@ -554,6 +558,7 @@ impl PySimulation {
                 hands: &hands,
                 grip: &grip,
                 material: &material,
+                rigid_hands: rigid_hands.as_deref(),
             };
             plan_live(py, &self.model, &start, &goal, &args, progress)
         })

@@ -425,6 +425,17 @@ def test_planning_from_a_live_simulation_starts_where_it_is(tiny):
     # In the model's own world (exact), the plan is what the simulation does.
     exact = sim.plan(points, particles, exact=True, horizon=4, samples=2, iterations=1, gradient_iters=1)
     assert np.array_equal(sim.step_many(exact["hands"][1:]), exact["planned"][1:])
+    # Each of the bundle's hands moved as one: its anchors keep their offsets.
+    ranges = bundle.hand_ranges
+    assert ranges[0][0] == 0 and ranges[-1][1] == len(sim.hands)
+    rigid = sim.plan(points, particles, rigid_hands=ranges, horizon=4, samples=2, iterations=1,
+                     gradient_iters=1)
+    moved = rigid["hands"] - rigid["hands"][0]
+    assert np.abs(moved).max() > 0
+    for start, end in ranges:
+        assert np.allclose(moved[:, start:end], moved[:, start:start + 1], atol=1e-12, rtol=0)
+    with pytest.raises(ValueError, match="rigid_hands"):
+        sim.plan(points, particles, rigid_hands=[(0, 1)], horizon=4, samples=2, iterations=1)
     with pytest.raises(ValueError, match="--plant"):
         sim.plan(points, particles, plant="truth.json")
     with pytest.raises(ValueError, match="goal"):
@@ -566,7 +577,7 @@ def test_the_control_loop_example_writes_its_plot(tiny, tmp_path):
         [sys.executable, str(REPO / "examples/python/mpc.py"),
          str(tiny["model"]), str(tiny["scene"]), "--goal", "move", "--out", str(out),
          "--frames", "8", "--every", "4", "--samples", "4", "--iterations", "1",
-         "--gradient-iters", "1"],
+         "--gradient-iters", "1", "--rigid-hands"],
         capture_output=True, text=True,
     )
     assert done.returncode == 0, done.stderr

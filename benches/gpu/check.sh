@@ -100,7 +100,7 @@ fi
 if [ -n "${FIT_SCENE:-}" ]; then
     mkdir -p "$OUT_DIR"
     # One line per fit: its time, where the time went, and the result.
-    FIT_SUMMARY='import json,sys; r=json.load(open(sys.argv[2])); print("%s: %.1f s (%s), E %.4g Pa, final loss %.5g, residual %s" % (sys.argv[1], r["seconds"], ", ".join("%s %.1f" % kv for kv in r.get("seconds_by_stage", {}).items()), r["material"]["E_median_pa"], r["loss"]["final"], r["residual"]["kind"]))'
+    FIT_SUMMARY='import json,sys; r=json.load(open(sys.argv[2])); print("%s: %.1f s (%s; material steps by phase: %s), E %.4g Pa, final loss %.5g, residual %s" % (sys.argv[1], r["seconds"], ", ".join("%s %.1f" % kv for kv in r.get("seconds_by_stage", {}).items()), ", ".join("%s %.1f" % kv for kv in r.get("seconds_by_phase", {}).items()), r["material"]["E_median_pa"], r["loss"]["final"], r["residual"]["kind"]))'
     if part fit; then
         for variant in $GPU_VARIANTS $CPU_DEVICE; do
             run env "$(variant_env "$variant")" "$BIN/dm-fit" "$FIT_SCENE" --out "$OUT_DIR/fit-$variant" --iters 3 --stage2-iters 1 --gain-evals 4 --residual none --rgb-iters 1 --device "$(variant_device "$variant")"

@@ -29,6 +29,7 @@ use dm_mpm::real::Vec3;
 use dm_mpm::tape::EffectGrads;
 use dm_mpm::{PatchParams, SimError};
 use serde::{Deserialize, Serialize};
+use std::time::Instant;
 
 /// Why a fit failed.
 #[derive(Debug, thiserror::Error)]
@@ -171,6 +172,31 @@ pub struct IterationReport {
     /// ([`late_frames_loss`]); a report without it reads as `None`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub late_loss: Option<f64>,
+    /// Where the step's `seconds` went (the rest: the optimiser's update);
+    /// a report without it reads as zeros.
+    #[serde(default)]
+    pub phase_seconds: StepPhases,
+}
+
+/// Seconds of one loss-and-gradient pass by phase: the forward frames
+/// (the world, the residual network's correction), L_dyn's terms on the
+/// frames' positions, stage 3's photometric term, and the backward frames
+/// (each frame's taped window run again, its adjoint, the network's VJP).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepPhases {
+    pub forward: f64,
+    pub loss: f64,
+    pub photometric: f64,
+    pub backward: f64,
+}
+
+impl std::ops::AddAssign for StepPhases {
+    fn add_assign(&mut self, other: Self) {
+        self.forward += other.forward;
+        self.loss += other.loss;
+        self.photometric += other.photometric;
+        self.backward += other.backward;
+    }
 }
 
 /// What stays fixed over a fit: frame-0 track matches and length pairs.
@@ -257,6 +283,8 @@ pub struct LossGradients {
     pub effects: EffectGrads,
     /// Gradients of the model extension's stiff ball and density gradient.
     pub extension: ExtensionGrads,
+    /// Where the pass's time went.
+    pub phases: StepPhases,
 }
 
 /// Share of the fitted frames, at their end, that [`late_frames_loss`]
@@ -329,6 +357,8 @@ pub fn loss_and_gradient_on(
     let mut extra_positions = Vec::new();
     let substeps = world.config().substeps_per_frame;
     let window_start = substeps - window.min(substeps);
+    let mut phases = StepPhases::default();
+    let mut clock = Instant::now();
     for t in 0..steps {
         if network.is_some() {
             starts.push(frame_start(world.host()?));
@@ -341,6 +371,7 @@ pub fn loss_and_gradient_on(
             regularised = regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
         }
+        phases.forward += lap(&mut clock);
         let positions = world.positions()?;
         let value = fixed.frame(bundle, t + 1, &positions)?;
         loss_parts.push((regularised, value.value / steps as f64));
@@ -355,11 +386,13 @@ pub fn loss_and_gradient_on(
         if extra.is_some() {
             extra_positions.push(positions);
         }
+        phases.loss += lap(&mut clock);
     }
     let extra_terms = match extra {
         Some(term) => term.frames(1, &extra_positions)?,
         None => Vec::new(),
     };
+    phases.photometric += lap(&mut clock);
     let mut loss = 0.0;
     for (t, (regularised, dynamic)) in loss_parts.into_iter().enumerate() {
         loss += regularised;
@@ -426,6 +459,7 @@ pub fn loss_and_gradient_on(
             }
         }
     }
+    phases.backward += lap(&mut clock);
     let extension = &model.extension;
     let masses: Vec<f64> = world.state()?.mass.iter().map(|m| f64::from(*m)).collect();
     let grad_extension = ExtensionGrads {
@@ -463,8 +497,17 @@ pub fn loss_and_gradient_on(
             frame_losses,
             effects: grad_effects,
             extension: grad_extension,
+            phases,
         },
     ))
+}
+
+/// Seconds since `clock`, which restarts.
+fn lap(clock: &mut Instant) -> f64 {
+    let now = Instant::now();
+    let seconds = now.duration_since(*clock).as_secs_f64();
+    *clock = now;
+    seconds
 }
 
 pub(crate) fn to_param_set(p: &PatchParams) -> Result<ParamSet, OptimError> {
@@ -593,6 +636,7 @@ pub fn material_step(
         seconds: start.elapsed().as_secs_f64(),
         rgb_l1: None,
         late_loss: Some(late_loss),
+        phase_seconds: grads.phases,
     })
 }
 

@@ -354,6 +354,10 @@ pub struct FitReport {
     /// written without it.
     #[serde(default)]
     pub seconds_by_stage: StageTimes,
+    /// The material steps' seconds in the history by phase
+    /// ([`crate::material_fit::StepPhases`]).
+    #[serde(default)]
+    pub seconds_by_phase: crate::material_fit::StepPhases,
     pub options: FitOptions,
     pub frames: usize,
     pub gain_search: Vec<GainTrial>,
@@ -1108,6 +1112,10 @@ impl FitRun<'_> {
             }),
             seconds: state.seconds,
             seconds_by_stage: state.stage_seconds.clone(),
+            seconds_by_phase: state.history.iter().fold(Default::default(), |mut sum, r| {
+                sum += r.phase_seconds;
+                sum
+            }),
             options: options.clone(),
             frames,
             gain_search: state.gain_search.clone(),

@@ -46,7 +46,9 @@ fn flags<'a>(extra: &[&'a str]) -> Vec<&'a str> {
 /// A report's loss record less the steps' wall-clock seconds.
 fn without_timings(mut loss: serde_json::Value) -> serde_json::Value {
     for step in loss["history"].as_array_mut().expect("history") {
-        step.as_object_mut().expect("step").remove("seconds");
+        let step = step.as_object_mut().expect("step");
+        step.remove("seconds");
+        step.remove("phase_seconds");
     }
     loss
 }

@@ -11,7 +11,7 @@ use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
 use crate::options::{Optimizer, SearchOptions};
 use crate::run::{History, Progress, StageSeconds};
-use crate::world::{PlanningModel, rollout};
+use crate::world::{PlanningModel, rollout_last};
 
 /// The rollouts and cost histories of a run's searches.
 pub(crate) struct Search<'a> {
@@ -55,10 +55,9 @@ impl<'a> Search<'a> {
         if let Some(state) = start {
             world.set_state(state)?;
         }
-        match rollout(&mut world, plan, true) {
-            Ok(frames) => {
-                let last = frames.last().map(Vec::as_slice).unwrap_or(&[]);
-                let (value, _) = self.cost.value_and_gradient(last);
+        match rollout_last(&mut world, plan, true) {
+            Ok(last) => {
+                let (value, _) = self.cost.value_and_gradient(&last);
                 let (penalty, _) =
                     crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
                 Ok(value + penalty)

@@ -186,13 +186,38 @@ pub fn rollout<T: DeviceReal>(
     plan: &ActionPlan,
     grasp_first: bool,
 ) -> Result<Vec<Vec<[f64; 3]>>, PlanError> {
+    let mut frames = vec![world.positions()?];
+    step_through(world, plan, grasp_first, |world| {
+        frames.push(world.positions()?);
+        Ok(())
+    })?;
+    Ok(frames)
+}
+
+/// [`rollout`]'s last frame alone (on the GPU, nothing is copied back
+/// before it).
+pub fn rollout_last<T: DeviceReal>(
+    world: &mut PlanningWorld<T>,
+    plan: &ActionPlan,
+    grasp_first: bool,
+) -> Result<Vec<[f64; 3]>, PlanError> {
+    step_through(world, plan, grasp_first, |_| Ok(()))?;
+    Ok(world.positions()?)
+}
+
+/// Steps `world` through `plan`, calling `after_frame` after each frame.
+fn step_through<T: DeviceReal>(
+    world: &mut PlanningWorld<T>,
+    plan: &ActionPlan,
+    grasp_first: bool,
+    mut after_frame: impl FnMut(&mut PlanningWorld<T>) -> Result<(), PlanError>,
+) -> Result<(), PlanError> {
     let path = plan.path();
     let hands = plan.anchor_count();
-    let mut frames = vec![world.positions()?];
     for t in 0..plan.horizon {
         let grasp = vec![grasp_first && t == 0; hands];
         world.step_frame(&path[t], &path[t + 1], &grasp)?;
-        frames.push(world.positions()?);
+        after_frame(world)?;
     }
-    Ok(frames)
+    Ok(())
 }

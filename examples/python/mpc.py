@@ -48,6 +48,8 @@ def main():
     parser.add_argument("--gradient-iters", type=int, default=3, help="gradient steps per plan")
     parser.add_argument("--rigid-hands", action="store_true",
                         help="move each of the bundle's hands as one rigid hand")
+    parser.add_argument("--exact", action="store_true",
+                        help="plan in the model's own world, not the coarse one (slower)")
     parser.add_argument("--out", default="mpc.png", help="the plot (PNG)")
     args = parser.parse_args()
 
@@ -56,7 +58,7 @@ def main():
     goal = args.goal or DEFAULT_GOALS[bundle.meta["category"]]
     points, particles = model.goal(goal, bundle)
     search = dict(samples=args.samples, iterations=args.iterations,
-                  gradient_iters=args.gradient_iters,
+                  gradient_iters=args.gradient_iters, exact=args.exact,
                   rigid_hands=bundle.hand_ranges if args.rigid_hands else None)
 
     clock = time.perf_counter()

@@ -200,8 +200,16 @@ pub fn plan_from_state(
         }
         None => ActionPlan::at_rest(start.hands, options.knots, options.horizon),
     };
-    let first = aimed_at_goal(at_rest, goal, correspondences.as_deref(), &positions);
+    // Straight at the goal, or holding still where that ends nearer (an
+    // object already close to the goal, a goal the straight path misses).
+    let aimed = aimed_at_goal(
+        at_rest.clone(),
+        goal,
+        correspondences.as_deref(),
+        &positions,
+    );
     let mut search = Search::new(options, &planning, &cost, weights, workspace);
+    let first = search.best_start(vec![aimed, at_rest], Some(&state))?;
     let plan = search.search(
         &first,
         Some(&state),

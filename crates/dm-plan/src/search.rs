@@ -68,6 +68,27 @@ impl<'a> Search<'a> {
         }
     }
 
+    /// The lowest-cost plan of `candidates` (each kept inside the
+    /// workspace; the first on a tie) rolled out from `start`: a search
+    /// then starts from it.
+    pub(crate) fn best_start(
+        &mut self,
+        candidates: Vec<ActionPlan>,
+        start: Option<&Particles<f32>>,
+    ) -> Result<ActionPlan, PlanError> {
+        let mut best: Option<(f64, ActionPlan)> = None;
+        for mut plan in candidates {
+            plan.project(&self.workspace);
+            let cost = self.evaluate(&plan, start)?;
+            self.rollouts += 1;
+            if best.as_ref().is_none_or(|(lowest, _)| cost < *lowest) {
+                best = Some((cost, plan));
+            }
+        }
+        best.map(|(_, plan)| plan)
+            .ok_or_else(|| crate::invalid("plan", "no candidate plan to start from"))
+    }
+
     /// Searches from `plan` with `iterations` MPPI iterations and
     /// `gradient_iters` refinement steps (as the optimiser allows).
     pub(crate) fn search(

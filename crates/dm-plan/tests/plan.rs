@@ -585,3 +585,68 @@ fn an_exact_plan_is_what_the_simulation_then_does() {
         assert!(apart == 0.0, "frame {}: {apart:e} m apart", t + 1);
     }
 }
+
+/// A live plan starts from the better of moving each hand straight to its
+/// grasped particles' goal points and holding still: with the grasped
+/// particles' goal points far off (the rest where the object lies), holding
+/// still wins and, with no search after it, the hands stay; with the goal
+/// the whole object moved, the straight path wins and they move.
+#[test]
+fn a_live_plan_starts_from_holding_still_where_that_ends_nearer() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, model) = tiny(dir.path(), Preset::Rope, 5, ResidualKind::None);
+    let live = stepped(&model, &bundle, 4);
+    let up = bundle.meta.up_axis.unit_vector();
+    let now: Vec<[f64; 3]> = live.state.x[..model.surface_count]
+        .iter()
+        .map(|p| [0, 1, 2].map(|a| f64::from(p[a])))
+        .collect();
+    let near_a_hand = |p: &[f64; 3]| {
+        live.hands
+            .iter()
+            .any(|h| (0..3).map(|a| (p[a] - h[a]).powi(2)).sum::<f64>() < 0.03f64.powi(2))
+    };
+    assert!(now.iter().any(near_a_hand), "no particle near the hands");
+    let goal_with = |shift: &dyn Fn(&[f64; 3]) -> [f64; 3]| Goal {
+        name: "points".into(),
+        points: now
+            .iter()
+            .map(|p| {
+                let d = shift(p);
+                [0, 1, 2].map(|a| p[a] + d[a])
+            })
+            .collect(),
+        particles: Some((0..model.surface_count).collect()),
+    };
+    let options = dm_plan::run::SearchOptions {
+        horizon: 6,
+        samples: 2,
+        iterations: 0,
+        gradient_iters: 0,
+        ..small_search()
+    };
+    let plan = |goal: &Goal| {
+        dm_plan::live::plan_from_state(&model, &live.start(), goal, &options, &mut |_, _, _| {
+            ControlFlow::Continue(())
+        })
+        .expect("plan")
+    };
+    let held_far = goal_with(&|p| {
+        if near_a_hand(p) {
+            up.map(|u| 0.3 * u)
+        } else {
+            [0.0; 3]
+        }
+    });
+    let still = plan(&held_far);
+    assert!(
+        still.hands.iter().all(|frame| frame == &still.hands[0]),
+        "the hands moved though holding still ends nearer"
+    );
+    assert_eq!(still.record.rollouts, 2, "both candidates are costed");
+    let moved = plan(&goal_with(&|_| [0.05, 0.0, 0.0]));
+    assert!(
+        moved.hands.last() != moved.hands.first(),
+        "the hands held still though the straight path ends nearer"
+    );
+}

@@ -76,15 +76,6 @@ impl Plant {
         })
     }
 
-    /// Where the plant's world runs (MuJoCo's on the CPU).
-    pub fn device(&self) -> Device {
-        match self {
-            Plant::Model { simulation, .. } => simulation.device(),
-            Plant::Truth { world, .. } => world.device(),
-            Plant::Foreign { .. } => Device::Cpu,
-        }
-    }
-
     pub fn foreign(plant: MujocoPlant, clip_hands: Vec<Vec<[f64; 3]>>) -> Self {
         Plant::Foreign {
             plant: Box::new(plant),
@@ -93,6 +84,10 @@ impl Plant {
     }
 
     pub fn positions(&mut self) -> Result<Vec<[f64; 3]>, PlanError> {
+        // Read every frame: on the GPU, the positions alone come back.
+        if let Plant::Truth { world, .. } = self {
+            return Ok(world.positions()?);
+        }
         Ok(self.state()?.x.iter().map(|p| p.map(f64::from)).collect())
     }
 

@@ -28,7 +28,7 @@
 # leaves out the runs on the host's cores beside the GPU's; GRAPHS_AB=1
 # also runs the demo's fit and the plan with DM_CUDA_GRAPHS=off (every
 # substep launched kernel by kernel); PLAN_SCALING=1 adds MPPI alone with
-# two samples at a time and with 20 side by side (200 rollouts each).
+# 2 and with 20 samples side by side (10 iterations each).
 # Every step runs even when an earlier one fails; the exit status is the
 # first failure's.
 set -u
@@ -121,10 +121,10 @@ if [ -n "${FIT_SCENE:-}" ]; then
             python3 -c "$PLAN_SUMMARY" "$OUT_DIR/plan-$variant/plan.json" "dm-plan $variant"
         done
         if [ "${PLAN_SCALING:-0}" = 1 ]; then
-            # MPPI alone, two samples at a time and 20 side by side (as
-            # many rollouts): how far the samples' streams overlap on the GPU.
+            # MPPI alone, 2 and 20 samples side by side over 10 iterations:
+            # per rollout, how far the samples' streams overlap on the GPU.
             for samples in 2 20; do
-                iterations=$((200 / samples))
+                iterations=10
                 run "$BIN/dm-plan" "${PLAN_MODEL:-$OUT_DIR/fit-cuda}" --bundle "$FIT_SCENE" --goal place \
                     --samples "$samples" --iterations "$iterations" --gradient-iters 0 --no-video --device cuda \
                     --out "$OUT_DIR/plan-mppi-$samples"

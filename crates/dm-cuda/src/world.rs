@@ -93,6 +93,8 @@ pub struct CudaWorld<T: DeviceReal> {
     /// Frames' untaped substeps as CUDA graphs, the latest last (at most
     /// [`GRAPHS_KEPT`]: a fit alternates taped and untaped rollouts).
     substep_graphs: Vec<SubstepGraph<T>>,
+    /// Graphs captured since construction.
+    graph_captures: usize,
 }
 
 /// Graphs a world keeps.
@@ -283,6 +285,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             adjoint_seconds: None,
             adjoint: None,
             substep_graphs: Vec::new(),
+            graph_captures: 0,
         };
         world.upload_couplings()?;
         Ok(world)
@@ -351,7 +354,7 @@ impl<T: DeviceReal> CudaWorld<T> {
     pub fn set_state(&mut self, state: &Particles<T>) -> Result<(), CudaError> {
         self.host.set_state(state)?;
         self.host_stale = false;
-        self.upload_state()
+        self.upload_particles()
     }
 
     /// Gives the world back to the host, its state up to date.
@@ -406,10 +409,23 @@ impl<T: DeviceReal> CudaWorld<T> {
         Ok(())
     }
 
+    /// Sends the host's particle state and material.
     fn upload_state(&mut self) -> Result<(), CudaError> {
+        self.upload_particles()?;
+        let stream = self.device.stream().clone();
+        let m = self.host.slot_material();
+        let mb = &mut self.material;
+        stream.memcpy_htod(&m.mu, &mut mb.mu)?;
+        stream.memcpy_htod(&m.lambda, &mut mb.lambda)?;
+        stream.memcpy_htod(&flat_weights(&m.expert_weights), &mut mb.weights)?;
+        Ok(())
+    }
+
+    /// Sends the host's particle state (positions, velocities, F, C, mass
+    /// and volume), not the material.
+    fn upload_particles(&mut self) -> Result<(), CudaError> {
         let stream = self.device.stream().clone();
         let p = self.host.slot_particles();
-        let m = self.host.slot_material();
         let (s, mb) = (&mut self.particles, &mut self.material);
         stream.memcpy_htod(&flat(&p.x), &mut s.x)?;
         stream.memcpy_htod(&flat(&p.v), &mut s.v)?;
@@ -417,27 +433,64 @@ impl<T: DeviceReal> CudaWorld<T> {
         stream.memcpy_htod(&flat(&p.c), &mut s.c)?;
         stream.memcpy_htod(&p.mass, &mut mb.mass)?;
         stream.memcpy_htod(&p.volume, &mut mb.volume)?;
-        stream.memcpy_htod(&m.mu, &mut mb.mu)?;
-        stream.memcpy_htod(&m.lambda, &mut mb.lambda)?;
-        stream.memcpy_htod(&flat_weights(&m.expert_weights), &mut mb.weights)?;
         Ok(())
     }
 
     /// Sends the actuator couplings when the host's have changed (a grasp
     /// only adds couplings, so their count tells).
     fn upload_couplings(&mut self) -> Result<(), CudaError> {
-        let (row_start, anchor, rest) = self.host.actuators().coupling_arrays();
-        if anchor.len() == self.couplings_on_device {
+        if self.host.actuators().coupling_count() == self.couplings_on_device {
             return Ok(());
         }
+        self.send_couplings()
+    }
+
+    /// Sends the host's couplings into the device's buffers, reallocating
+    /// (and so dropping the graphs) only a buffer whose length differs;
+    /// with no couplings the buffers keep their old, unread contents.
+    fn send_couplings(&mut self) -> Result<(), CudaError> {
+        let (row_start, anchor, rest) = self.host.actuators().coupling_arrays();
         let stream = self.device.stream().clone();
-        let rest = flat(rest);
-        self.couplings.row_start = stream.clone_htod(row_start)?;
-        self.couplings.anchor = stream.clone_htod(anchor)?;
-        self.couplings.rest_offset = stream.clone_htod(&rest)?;
+        let c = &mut self.couplings;
+        let mut moved = overwrite(&stream, &mut c.row_start, row_start)?;
+        if !anchor.is_empty() {
+            moved |= overwrite(&stream, &mut c.anchor, anchor)?;
+            moved |= overwrite(&stream, &mut c.rest_offset, &flat(rest))?;
+        }
         self.couplings_on_device = anchor.len();
-        self.substep_graphs.clear();
+        if moved {
+            self.substep_graphs.clear();
+        }
         Ok(())
+    }
+
+    /// Starts again from `world`, a world of the same particle count and
+    /// grid (typically the one this world was made from): its state,
+    /// material and couplings are sent into the buffers in place, so the
+    /// graphs captured for those buffers replay again (a planner's
+    /// rollouts, each from the same start).
+    pub fn restart_from(&mut self, world: World<T>) -> Result<(), CudaError> {
+        if world.particle_count() != self.particle_count()
+            || world.config().grid_res != self.config().grid_res
+        {
+            return Err(CudaError::Unsupported(format!(
+                "restarting a world of {} particles on a {}³ grid from one of {} on a {}³ grid",
+                self.particle_count(),
+                self.config().grid_res,
+                world.particle_count(),
+                world.config().grid_res
+            )));
+        }
+        check_supported(&world)?;
+        self.host = world;
+        self.host_stale = false;
+        self.upload_state()?;
+        self.send_couplings()
+    }
+
+    /// CUDA graphs this world has captured (each capture also instantiates).
+    pub fn graph_captures(&self) -> usize {
+        self.graph_captures
     }
 
     pub(crate) fn kernel_consts(&self) -> KernelConsts<T> {
@@ -787,6 +840,7 @@ impl<T: DeviceReal> CudaWorld<T> {
             self.launch_substep(k, s, anchor_stride.map(|a| s * a))?;
         }
         let graph = capture.end()?;
+        self.graph_captures += 1;
         Ok(OwnedGraph::instantiate(graph, stream)?)
     }
 
@@ -836,10 +890,10 @@ enum FrameRun {
 
 /// Copies `values` into `buffer`, reallocating it where the length
 /// differs; returns whether the buffer moved.
-fn overwrite<T: DeviceReal>(
+fn overwrite<V: DeviceRepr>(
     stream: &Arc<CudaStream>,
-    buffer: &mut CudaSlice<T>,
-    values: &[T],
+    buffer: &mut CudaSlice<V>,
+    values: &[V],
 ) -> Result<bool, CudaError> {
     if buffer.len() == values.len() {
         stream.memcpy_htod(values, buffer)?;

@@ -181,13 +181,20 @@ pub struct IterationReport {
 /// Seconds of one loss-and-gradient pass by phase: the forward frames
 /// (the world, the residual network's correction), L_dyn's terms on the
 /// frames' positions, stage 3's photometric term, and the backward frames
-/// (each frame's taped window run again, its adjoint, the network's VJP).
+/// (each frame's taped window run again, its adjoint, the network's VJP);
+/// of the forward and backward frames, the residual network's share
+/// (its inputs and Δv moved between the world and the network, the
+/// network itself, its VJP).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StepPhases {
     pub forward: f64,
     pub loss: f64,
     pub photometric: f64,
     pub backward: f64,
+    #[serde(default)]
+    pub forward_residual: f64,
+    #[serde(default)]
+    pub backward_residual: f64,
 }
 
 impl std::ops::AddAssign for StepPhases {
@@ -196,6 +203,8 @@ impl std::ops::AddAssign for StepPhases {
         self.loss += other.loss;
         self.photometric += other.photometric;
         self.backward += other.backward;
+        self.forward_residual += other.forward_residual;
+        self.backward_residual += other.backward_residual;
     }
 }
 
@@ -361,15 +370,19 @@ pub fn loss_and_gradient_on(
     let mut clock = Instant::now();
     for t in 0..steps {
         if network.is_some() {
+            let residual_clock = Instant::now();
             starts.push(frame_start(world.host()?));
+            phases.forward_residual += residual_clock.elapsed().as_secs_f64();
         }
         let (from, to, grasp) = model.hand_step(bundle, t);
         checkpoints.push(world.step_frame_keeping(&from, &to, &grasp, window_start)?);
         let mut regularised = 0.0;
         if let Some(network) = &network {
+            let residual_clock = Instant::now();
             let (dv, _) = world.edit(|w| apply_residual(w, network, &starts, t))??;
             regularised = regulariser * dv.iter().flatten().map(|c| c * c).sum::<f64>();
             corrections.push(dv);
+            phases.forward_residual += residual_clock.elapsed().as_secs_f64();
         }
         phases.forward += lap(&mut clock);
         let positions = world.positions()?;
@@ -424,6 +437,7 @@ pub fn loss_and_gradient_on(
         let tape = world.step_frame_rest_taped(&from, &to, window)?;
         let mut x_start_grad = None;
         if let (Some(network), Some(grad_residual)) = (&network, grad_residual.as_mut()) {
+            let residual_clock = Instant::now();
             let inputs = frame_inputs(world.host()?, &starts, t);
             let correction = world.edit(|w| w.apply_velocity_correction(&corrections[t]))??;
             let grads = residual_backward(
@@ -439,6 +453,7 @@ pub fn loss_and_gradient_on(
                 .zip(&grads.parameters)
                 .for_each(|(g, d)| *g += d);
             x_start_grad = Some(grads.x_start);
+            phases.backward_residual += residual_clock.elapsed().as_secs_f64();
         }
         let g = world.backward_frame(&tape, &carried)?;
         grad_effects += g.effects;

@@ -87,6 +87,14 @@ impl<T: DeviceReal> CorrectedWorld<T> {
         Ok(())
     }
 
+    /// Starts again from `world` (see [`DeviceWorld::restart_from`]); the
+    /// network's history starts again too.
+    pub fn restart_from(&mut self, world: World<T>) -> Result<(), ModelError> {
+        self.world.restart_from(world)?;
+        self.starts.clear();
+        Ok(())
+    }
+
     pub fn state(&mut self) -> Result<Particles<T>, ModelError> {
         self.world.state()
     }

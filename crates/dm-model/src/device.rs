@@ -212,6 +212,18 @@ impl<T: DeviceReal> DeviceWorld<T> {
         }
     }
 
+    /// Starts again from `world` (of the same particle count and grid); on
+    /// the GPU in the same buffers, so its captured graphs replay again.
+    pub fn restart_from(&mut self, world: World<T>) -> Result<(), ModelError> {
+        match self {
+            DeviceWorld::Cpu(current) => {
+                **current = world;
+                Ok(())
+            }
+            DeviceWorld::Cuda(current) => Ok(current.restart_from(world)?),
+        }
+    }
+
     /// The world with its particle state up to date (fetched from the GPU).
     pub fn host(&mut self) -> Result<&World<T>, ModelError> {
         match self {

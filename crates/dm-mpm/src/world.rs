@@ -36,6 +36,29 @@ pub struct World<T: Real> {
     pub stage_seconds: StageSeconds,
 }
 
+/// The same world with scratch buffers of its own (they hold nothing
+/// between substeps), as a world built the same way would be.
+impl<T: Real> Clone for World<T> {
+    fn clone(&self) -> Self {
+        Self {
+            config: self.config.clone(),
+            consts: self.consts,
+            particles: self.particles.clone(),
+            material: self.material.clone(),
+            pure_neo_hookean: self.pure_neo_hookean,
+            actuators: self.actuators.clone(),
+            anchor_x: self.anchor_x.clone(),
+            anchor_v: self.anchor_v.clone(),
+            scratch: SubstepScratch::new(self.config.grid_res),
+            external_accel: self.external_accel.clone(),
+            id_of_slot: self.id_of_slot.clone(),
+            frame: self.frame,
+            substep_in_frame: self.substep_in_frame,
+            stage_seconds: self.stage_seconds,
+        }
+    }
+}
+
 impl<T: Real> World<T> {
     /// A world of particles at rest at `positions`, each of volume
     /// `particle_volume` (m³), with the given per-particle material.

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::actions::{ActionPlan, Workspace};
 use crate::cost::{CostWeights, TerminalCost, plan_penalty};
-use crate::world::PlanningModel;
+use crate::world::{PlanningModel, PlanningWorld, WorldPool};
 use crate::{PlanError, keep_going};
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -53,6 +53,19 @@ pub fn cost_and_gradient<T: DeviceReal>(
     window: usize,
 ) -> Result<(f64, Vec<f64>), PlanError> {
     let mut world = model.world::<T>()?;
+    cost_and_gradient_in(&mut world, model, start, plan, cost, weights, window)
+}
+
+/// [`cost_and_gradient`] in `world`, a world of `model` at its first frame.
+fn cost_and_gradient_in<T: DeviceReal>(
+    world: &mut PlanningWorld<T>,
+    model: &PlanningModel,
+    start: Option<&Particles<T>>,
+    plan: &ActionPlan,
+    cost: &TerminalCost,
+    weights: &CostWeights,
+    window: usize,
+) -> Result<(f64, Vec<f64>), PlanError> {
     if let Some(state) = start {
         world.set_state(state)?;
     }
@@ -141,16 +154,31 @@ pub fn refine(
     let mut v = vec![0.0; params.len()];
     let mut best = (f64::INFINITY, params.clone());
     let mut history = Vec::with_capacity(options.iterations + 1);
+    // One world, started again for each iterate (on the GPU its graphs
+    // are captured once).
+    let worlds = WorldPool::<f32>::new(model)?;
     for iteration in 0..=options.iterations {
         let current = plan.with_params(&params);
-        let (value, grad) =
-            match cost_and_gradient(model, start, &current, cost, weights, options.window) {
-                Ok(result) => result,
-                // A step into a diverging plan ends the refinement; the best
-                // iterate so far stands.
-                Err(e) if e.is_simulation() && iteration > 0 => break,
-                Err(other) => return Err(other),
-            };
+        let mut world = worlds.take()?;
+        let outcome = cost_and_gradient_in(
+            &mut world,
+            model,
+            start,
+            &current,
+            cost,
+            weights,
+            options.window,
+        );
+        if outcome.is_ok() {
+            worlds.give_back(world);
+        }
+        let (value, grad) = match outcome {
+            Ok(result) => result,
+            // A step into a diverging plan ends the refinement; the best
+            // iterate so far stands.
+            Err(e) if e.is_simulation() && iteration > 0 => break,
+            Err(other) => return Err(other),
+        };
         history.push(value);
         if value < best.0 {
             best = (value, params.clone());

@@ -208,7 +208,7 @@ pub fn plan_from_state(
         correspondences.as_deref(),
         &positions,
     );
-    let mut search = Search::new(options, &planning, &cost, weights, workspace);
+    let mut search = Search::new(options, &planning, &cost, weights, workspace)?;
     let first = search.best_start(vec![aimed, at_rest], Some(&state))?;
     let plan = search.search(
         &first,

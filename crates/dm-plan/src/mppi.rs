@@ -51,13 +51,15 @@ pub struct SearchResult {
 /// Minimises `cost` from `start`. `project` keeps a sample feasible (e.g.
 /// inside the workspace); `progress` is called with (iteration, best cost)
 /// and stops the search with [`PlanError::Stopped`] when it breaks.
-/// An iteration's samples are drawn in order, then costed in parallel:
-/// the result does not depend on the thread count.
+/// An iteration's samples are drawn in order, then costed in parallel
+/// (on `threads` when given, else on the current rayon pool): the result
+/// does not depend on the thread count.
 pub fn mppi(
     cost: &(dyn Fn(&[f64]) -> Result<f64, PlanError> + Sync),
     start: &[f64],
     project: &dyn Fn(&mut Vec<f64>),
     options: &MppiOptions,
+    threads: Option<&rayon::ThreadPool>,
     progress: &mut dyn FnMut(usize, f64) -> ControlFlow<()>,
 ) -> Result<SearchResult, PlanError> {
     let noise = Normal::new(0.0, options.noise_m).map_err(|e| PlanError::InvalidOption {
@@ -87,12 +89,17 @@ pub fn mppi(
         }
         // All samples run to the end; a failure is reported as the first
         // failing sample's, whatever the thread count.
-        let costs = samples
-            .par_iter()
-            .map(|sample| cost(sample))
-            .collect::<Vec<_>>()
-            .into_iter()
-            .collect::<Result<Vec<f64>, PlanError>>()?;
+        let evaluate = || {
+            samples
+                .par_iter()
+                .map(|sample| cost(sample))
+                .collect::<Vec<_>>()
+        };
+        let costs = match threads {
+            Some(pool) => pool.install(evaluate),
+            None => evaluate(),
+        };
+        let costs = costs.into_iter().collect::<Result<Vec<f64>, PlanError>>()?;
         rollouts += samples.len();
         for (sample, &c) in samples.iter().zip(&costs) {
             if c < best_cost {
@@ -151,7 +158,7 @@ mod tests {
                 iterations: 30,
                 ..MppiOptions::default()
             };
-            mppi(&cost, &[0.0; 4], &|_| {}, &options, &mut |_, _| {
+            mppi(&cost, &[0.0; 4], &|_| {}, &options, None, &mut |_, _| {
                 ControlFlow::Continue(())
             })
             .expect("search")
@@ -182,7 +189,7 @@ mod tests {
                 .build()
                 .expect("thread pool")
                 .install(|| {
-                    mppi(&cost, &[0.1; 6], &|_| {}, &options, &mut |_, _| {
+                    mppi(&cost, &[0.1; 6], &|_| {}, &options, None, &mut |_, _| {
                         ControlFlow::Continue(())
                     })
                 })

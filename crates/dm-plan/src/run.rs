@@ -528,7 +528,7 @@ pub fn plan(options: &PlanOptions, progress: Progress<'_>) -> Result<RunResult, 
         ));
     }
     let (weights, cost) = goal_cost(&options.search, &planning, &goal, correspondences.clone());
-    let mut search = Search::new(&options.search, &planning, &cost, weights, workspace);
+    let mut search = Search::new(&options.search, &planning, &cost, weights, workspace)?;
     let first = initial_plan(
         &grasps,
         &goal,

@@ -1,6 +1,7 @@
 //! The search of one plan: MPPI and the gradient refinement in turn, as
 //! the options ask, from the first frame or from an observed state.
 
+use dm_model::device::Device;
 use dm_mpm::state::Particles;
 
 use crate::PlanError;
@@ -11,12 +12,14 @@ use crate::gradient::{GradientOptions, refine};
 use crate::mppi::{MppiOptions, mppi};
 use crate::options::{Optimizer, SearchOptions};
 use crate::run::{History, Progress, StageSeconds};
-use crate::world::{PlanningModel, rollout_last};
+use crate::world::{PlanningModel, WorldPool, rollout_last};
 
 /// The rollouts and cost histories of a run's searches.
 pub(crate) struct Search<'a> {
     pub(crate) options: &'a SearchOptions,
     pub(crate) planning: &'a PlanningModel,
+    /// The worlds MPPI's rollouts run in.
+    worlds: WorldPool<'a>,
     pub(crate) cost: &'a TerminalCost,
     pub(crate) weights: CostWeights,
     pub(crate) workspace: Workspace,
@@ -32,17 +35,18 @@ impl<'a> Search<'a> {
         cost: &'a TerminalCost,
         weights: CostWeights,
         workspace: Workspace,
-    ) -> Self {
-        Self {
+    ) -> Result<Self, PlanError> {
+        Ok(Self {
             options,
             planning,
+            worlds: WorldPool::new(planning)?,
             cost,
             weights,
             workspace,
             rollouts: 0,
             history: History::default(),
             seconds: StageSeconds::default(),
-        }
+        })
     }
 
     /// The cost of a plan rolled out from `start` (the first frame when None).
@@ -51,12 +55,13 @@ impl<'a> Search<'a> {
         plan: &ActionPlan,
         start: Option<&Particles<f32>>,
     ) -> Result<f64, PlanError> {
-        let mut world = self.planning.world::<f32>()?;
+        let mut world = self.worlds.take()?;
         if let Some(state) = start {
             world.set_state(state)?;
         }
         match rollout_last(&mut world, plan, true) {
             Ok(last) => {
+                self.worlds.give_back(world);
                 let (value, _) = self.cost.value_and_gradient(&last);
                 let (penalty, _) =
                     crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
@@ -120,11 +125,24 @@ impl<'a> Search<'a> {
             };
             let template = best.clone();
             let clock = std::time::Instant::now();
+            // A GPU rollout's thread mostly waits on its stream: a thread
+            // per sample keeps every sample's stream busy at once, more
+            // than the host has cores.
+            let threads = match self.planning.device() {
+                Device::Cuda if o.samples > rayon::current_num_threads() => Some(
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(o.samples)
+                        .build()
+                        .map_err(|e| crate::invalid("--samples", e.to_string()))?,
+                ),
+                _ => None,
+            };
             let result = mppi(
                 &|params| self.evaluate(&template.with_params(params), start),
                 &best.params(),
                 &project,
                 &mppi_options,
+                threads.as_ref(),
                 &mut |i, _| progress("MPPI", i, iterations),
             )?;
             self.seconds.mppi += clock.elapsed().as_secs_f64();

@@ -7,12 +7,13 @@
 //! as it corrects the fitted model's (its grid and weights; the particles
 //! are the planning world's).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use dm_model::WorldModel;
 use dm_model::corrected::CorrectedWorld;
 use dm_model::device::{Device, DeviceReal, DeviceWorld};
 use dm_model::residual::ResidualNetwork;
+use dm_mpm::World;
 use dm_mpm::actuators::Grip;
 use dm_mpm::neighbors::PointIndex;
 use dm_mpm::{ActuatorConfig, ActuatorMode};
@@ -150,6 +151,11 @@ impl PlanningModel {
     /// A fresh world at the first frame, on the planning device (on the
     /// GPU with a stream of its own, so that rollouts run concurrently).
     pub fn world<T: DeviceReal>(&self) -> Result<PlanningWorld<T>, PlanError> {
+        self.world_from(self.host_world()?)
+    }
+
+    /// The first frame's world on the host.
+    fn host_world<T: DeviceReal>(&self) -> Result<World<T>, PlanError> {
         let mut material = self.coarse.material::<T>(self.e_scale, self.nu);
         self.experts.apply_to(&mut material);
         let mut world = self
@@ -158,6 +164,11 @@ impl PlanningModel {
         if let Some(grip) = &self.grip {
             world.set_grip(grip)?;
         }
+        Ok(world)
+    }
+
+    /// `world` on the planning device, with the residual network if any.
+    fn world_from<T: DeviceReal>(&self, world: World<T>) -> Result<PlanningWorld<T>, PlanError> {
         Ok(CorrectedWorld::new(
             DeviceWorld::new(world, self.device)?,
             self.residual.clone(),
@@ -171,6 +182,52 @@ impl PlanningModel {
             .iter()
             .map(|p| index.nearest(p, 1).first().map_or(0, |n| n.0))
             .collect()
+    }
+}
+
+/// Planning worlds kept between rollouts: each rollout takes one, started
+/// again from the first frame, and gives it back when it ends well. On the
+/// GPU a kept world keeps its buffers, so the substeps' graphs it captured
+/// replay in later rollouts instead of being captured again.
+#[derive(Debug)]
+pub struct WorldPool<'a, T: DeviceReal = f32> {
+    planning: &'a PlanningModel,
+    first_frame: World<T>,
+    idle: Mutex<Vec<PlanningWorld<T>>>,
+}
+
+impl<'a, T: DeviceReal> WorldPool<'a, T> {
+    pub fn new(planning: &'a PlanningModel) -> Result<Self, PlanError> {
+        Ok(Self {
+            planning,
+            first_frame: planning.host_world()?,
+            idle: Mutex::new(Vec::new()),
+        })
+    }
+
+    /// A world at the first frame: a kept one started again, or a new one.
+    pub fn take(&self) -> Result<PlanningWorld<T>, PlanError> {
+        let kept = self
+            .idle
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .pop();
+        match kept {
+            Some(mut world) => {
+                world.restart_from(self.first_frame.clone())?;
+                Ok(world)
+            }
+            None => self.planning.world_from(self.first_frame.clone()),
+        }
+    }
+
+    /// Keeps `world` for a later rollout (one that failed is dropped
+    /// instead: its device state is not trusted).
+    pub fn give_back(&self, world: PlanningWorld<T>) {
+        self.idle
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .push(world);
     }
 }
 

@@ -10,7 +10,7 @@ use dm_plan::actions::ActionPlan;
 use dm_plan::cost::{CostWeights, TerminalCost};
 use dm_plan::goal::Goal;
 use dm_plan::gradient::cost_and_gradient;
-use dm_plan::world::PlanningModel;
+use dm_plan::world::{PlanningModel, WorldPool};
 use dm_play::PlayOptions;
 use dm_synth::{Preset, SynthConfig};
 
@@ -525,6 +525,46 @@ fn the_planning_world_steps_in_the_material_it_is_given() {
         moved > 1e-3,
         "8× the stiffness moved no particle by more than {moved} m"
     );
+}
+
+/// A world kept between rollouts and started again gives the rollout a
+/// new world would, bit for bit: after a rollout whose hands grasped and
+/// pulled, a different plan from the first frame and one from a later
+/// state (the hands grasping there again).
+#[test]
+fn a_kept_world_started_again_rolls_out_as_a_new_one() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (bundle, model) = tiny(dir.path(), Preset::Rope, 6, ResidualKind::None);
+    let planning = PlanningModel::new(&model, &PlayOptions::interactive()).expect("planning");
+    let hands = dm_model::hand_anchors(&bundle, 0);
+    let mut pulled = ActionPlan::at_rest(&hands, 2, 4);
+    pulled.hands[0].knots = vec![[0.0, 0.04, 0.02], [0.03, 0.06, 0.05]];
+    let mut lifted = ActionPlan::at_rest(&hands, 2, 4);
+    lifted.hands[0].knots = vec![[0.0, 0.05, 0.0], [0.0, 0.08, 0.0]];
+    let mut fresh = planning.world::<f32>().expect("world");
+    dm_plan::world::rollout(&mut fresh, &pulled, true).expect("rollout");
+    let later = fresh.state().expect("state");
+    let pool = WorldPool::<f32>::new(&planning).expect("pool");
+    let mut kept = pool.take().expect("world");
+    dm_plan::world::rollout(&mut kept, &pulled, true).expect("rollout");
+    pool.give_back(kept);
+    for start in [None, Some(&later)] {
+        let mut kept = pool.take().expect("kept world");
+        let mut fresh = planning.world::<f32>().expect("world");
+        if let Some(state) = start {
+            kept.set_state(state).expect("state");
+            fresh.set_state(state).expect("state");
+        }
+        let want = dm_plan::world::rollout(&mut fresh, &lifted, true).expect("rollout");
+        let got = dm_plan::world::rollout(&mut kept, &lifted, true).expect("rollout");
+        assert_eq!(
+            got,
+            want,
+            "a kept world rolled out otherwise (start {:?})",
+            start.is_some()
+        );
+        pool.give_back(kept);
+    }
 }
 
 /// With `exact`, the planning world is the model's own world: a

@@ -176,6 +176,7 @@ fn parity_run<T: DeviceReal>(
     let precision = T::PRECISION.c_type();
     let mut passed = true;
     let (mut cpu_s, mut gpu_s) = (0.0, 0.0);
+    let mut after_first_frame = None;
     for frame in 0..frames {
         let (from, to, active) = parity_anchors(scene, frame);
         let start = Instant::now();
@@ -184,6 +185,9 @@ fn parity_run<T: DeviceReal>(
         let start = Instant::now();
         gpu.step_frame(&from, &to, &active)?;
         gpu_s += start.elapsed().as_secs_f64();
+        if frame == 0 {
+            after_first_frame = Some(gpu.state()?);
+        }
         if frame == 0 || frame + 1 == frames {
             let (dx, df) = compare(&cpu, &mut gpu)?;
             let relative = dx / domain;
@@ -203,11 +207,39 @@ fn parity_run<T: DeviceReal>(
             );
         }
     }
+    if let Some(first) = after_first_frame {
+        passed &= restart_parity(&mut gpu, scene, particles, &first)?;
+    }
     let coupled = cpu.actuators().coupled_particle_count();
     eprintln!(
         "# {scene:?} {precision}: {particles} particles, {coupled} coupled; {frames} frames: cpu {cpu_s:.2} s, gpu {gpu_s:.2} s"
     );
     Ok(passed)
+}
+
+/// The GPU world started again from its first frame (as a planner's kept
+/// worlds are): its first frame again, against `first` (that frame's state
+/// the first time); where graphs are on, replayed without a new capture.
+fn restart_parity<T: DeviceReal>(
+    gpu: &mut CudaWorld<T>,
+    scene: ParityScene,
+    particles: usize,
+    first: &Particles<T>,
+) -> Result<bool> {
+    let captured = gpu.graph_captures();
+    gpu.restart_from(parity_world::<T>(scene, particles)?)?;
+    let (from, to, active) = parity_anchors(scene, 0);
+    gpu.step_frame(&from, &to, &active)?;
+    let (dx, _) = largest_differences(first, &gpu.state()?);
+    let relative = dx / gpu.config().domain_size;
+    let captured_again = gpu.graph_captures() - captured;
+    let ok = relative <= POSITION_PARITY && (!gpu.device().graphs_enabled() || captured_again == 0);
+    println!(
+        "restarted world {scene:?} {}: frame 1 again, max |dx|/domain {relative:.3e}, graphs captured again {captured_again}{}",
+        T::PRECISION.c_type(),
+        if ok { " — pass" } else { " — FAIL" }
+    );
+    Ok(ok)
 }
 
 /// `dm-bench cuda-parity`: CPU and CUDA worlds side by side; fails when a

@@ -81,6 +81,15 @@ fn the_cuda_kernels_match_the_cpu_under_the_emulator() {
         !stderr.contains("graph capture failed"),
         "a graph capture failed:\n{stderr}"
     );
+    // A world started again replays its graphs and steps as it did.
+    for scene in ["Hands", "Plastic"] {
+        for precision in ["double", "float"] {
+            let line = format!(
+                "restarted world {scene} {precision}: frame 1 again, max |dx|/domain 0.000e0, graphs captured again 0 — pass"
+            );
+            assert!(stdout.contains(&line), "no `{line}` in:\n{stdout}");
+        }
+    }
     // The fit's backward pass: a frame kept at its window, the window taped again.
     for precision in ["double", "float"] {
         assert!(
@@ -126,7 +135,7 @@ fn a_refused_capture_falls_back_to_launches_one_by_one() {
     );
     assert_eq!(
         stdout.matches(" — pass").count(),
-        4,
+        8,
         "not every position parity passed:\n{stdout}"
     );
 }

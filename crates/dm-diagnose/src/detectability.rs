@@ -202,16 +202,18 @@ pub(crate) fn trial_runs(
         .filter(|&&c| Some(c) != named)
         .flat_map(|&c| trials(c, model, signatures))
         .collect();
-    let total = all.len();
+    let runs = crate::in_batches(
+        &all,
+        &mut |done, total| progress("trials on the extended model", done, total),
+        |trial| rollout(&trial.model, bundle, device).ok(),
+    );
     all.into_iter()
-        .enumerate()
-        .filter_map(|(i, trial)| {
-            progress("trials on the extended model", i, total);
-            let run = rollout(&trial.model, bundle, device).ok()?;
+        .zip(runs)
+        .filter_map(|(trial, run)| {
             Some(TrialRun {
                 candidate: trial.candidate,
                 parameters: trial.parameters,
-                positions: run.positions,
+                positions: run?.positions,
             })
         })
         .collect()
@@ -245,15 +247,18 @@ pub(crate) fn detectability(
         threshold,
         device,
     };
+    // Each effect's bisection on its own, the effects side by side.
+    let found = crate::in_batches(
+        &Candidate::ALL,
+        &mut |done, total| progress("detectability of the library's effects", done, total),
+        |&candidate| {
+            let own: Vec<&TrialRun> = trials.iter().filter(|t| t.candidate == candidate).collect();
+            least_visible(&injection, candidate, &own, steps)
+        },
+    );
     let mut limits = BTreeMap::new();
-    for (i, &candidate) in Candidate::ALL.iter().enumerate() {
-        progress(
-            &format!("detectability of {}", candidate.name()),
-            i,
-            Candidate::ALL.len(),
-        );
-        let own: Vec<&TrialRun> = trials.iter().filter(|t| t.candidate == candidate).collect();
-        if let Some(limit) = least_visible(&injection, candidate, &own, steps) {
+    for (candidate, limit) in Candidate::ALL.iter().zip(found) {
+        if let Some(limit) = limit {
             limits.insert(candidate.name().to_string(), limit);
         }
     }
@@ -294,7 +299,7 @@ pub(crate) fn detectability(
             threshold,
             device,
         };
-        for &candidate in &untestable {
+        let found = crate::in_batches(&untestable, &mut |_, _| {}, |&candidate| {
             let own: Vec<TrialRun> = trials
                 .iter()
                 .filter(|t| t.candidate == candidate)
@@ -308,7 +313,10 @@ pub(crate) fn detectability(
                 })
                 .collect();
             let own: Vec<&TrialRun> = own.iter().collect();
-            let Some(found) = least_visible(&varied_injection, candidate, &own, steps) else {
+            least_visible(&varied_injection, candidate, &own, steps)
+        });
+        for (&candidate, found) in untestable.iter().zip(found) {
+            let Some(found) = found else {
                 continue;
             };
             let (Some(magnitude), Some(limit)) =

@@ -370,6 +370,28 @@ impl Scored {
 /// Progress: (what, done, total).
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
+/// Trials evaluated at once: each is a world of its own (on the GPU with
+/// a stream of its own), so a batch fills the device where one small
+/// world cannot.
+const BATCH: usize = 8;
+
+/// `evaluate` on every item in order, [`BATCH`] at a time side by side;
+/// `progress(stage, done, total)` before each batch. The results do not
+/// depend on the thread count (each world steps the same on any).
+pub(crate) fn in_batches<T: Sync, R: Send>(
+    items: &[T],
+    progress: &mut dyn FnMut(usize, usize),
+    evaluate: impl Fn(&T) -> R + Sync,
+) -> Vec<R> {
+    use rayon::prelude::*;
+    let mut out = Vec::with_capacity(items.len());
+    for (b, batch) in items.chunks(BATCH).enumerate() {
+        progress(b * BATCH, items.len());
+        out.extend(batch.par_iter().map(&evaluate).collect::<Vec<_>>());
+    }
+    out
+}
+
 /// Runs the whole diagnosis of `model_dir` (dm-fit's output) on `bundle`
 /// and writes `out/diagnosis.json`, `out/report.md`, plots and, when a
 /// cause is named, `out/extended_model/model.json`: [`show`] where the
@@ -584,11 +606,18 @@ fn name(
     let mut best_per_candidate: BTreeMap<&'static str, (Trial, Scored)> = BTreeMap::new();
     let mut trial_records = Vec::with_capacity(total);
     let mut trial_runs = Vec::with_capacity(total);
-    for (i, trial) in all_trials.into_iter().enumerate() {
-        progress(&format!("candidate {}", trial.candidate.name()), i, total);
+    let outcomes = in_batches(
+        &all_trials,
+        &mut |done, total| {
+            let name = all_trials.get(done).map_or("", |t| t.candidate.name());
+            progress(&format!("candidates ({name}…)"), done, total);
+        },
+        |trial| score_model(&trial.model, bundle, options.device),
+    );
+    for (trial, outcome) in all_trials.into_iter().zip(outcomes) {
         // A diverging or unbuildable trial scores infinity (e.g. a
         // stiffness needing more substeps than allowed).
-        let scored = match score_model(&trial.model, bundle, options.device) {
+        let scored = match outcome {
             Ok((scored, run)) => {
                 trial_runs.push(detectability::TrialRun {
                     candidate: trial.candidate,
@@ -1110,6 +1139,32 @@ pub fn model_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Batched trials come back in the trials' order whatever the thread
+    /// count, with progress reported before each batch.
+    #[test]
+    fn batches_keep_the_order_on_any_thread_count() {
+        let items: Vec<u64> = (0..19).collect();
+        let slow_square = |&i: &u64| {
+            std::thread::sleep(std::time::Duration::from_millis(19 - i));
+            i * i
+        };
+        let mut reported = Vec::new();
+        let wide = in_batches(
+            &items,
+            &mut |done, total| reported.push((done, total)),
+            slow_square,
+        );
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("pool")
+            .install(|| in_batches(&items, &mut |_, _| {}, slow_square));
+        let expected: Vec<u64> = items.iter().map(|i| i * i).collect();
+        assert_eq!(wide, expected);
+        assert_eq!(one, expected);
+        assert_eq!(reported, [(0, 19), (8, 19), (16, 19)]);
+    }
 
     #[test]
     fn validation_frames_are_the_training_splits_last_quarter() {

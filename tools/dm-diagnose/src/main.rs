@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use dm_diagnose::{DiagnoseOptions, diagnose};
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -30,18 +31,31 @@ struct Cli {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    let bar = ProgressBar::new(0);
+    // A bar on a terminal; in a log, a line per step (a tenth of a long stage).
+    let terminal = std::io::stderr().is_terminal();
+    let bar = if terminal {
+        ProgressBar::new(0)
+    } else {
+        ProgressBar::hidden()
+    };
     bar.set_style(
         ProgressStyle::with_template("{msg:>32} [{bar:30}] {pos}/{len} {elapsed}")
             .context("progress template")?
             .progress_chars("=> "),
     );
+    let clock = std::time::Instant::now();
     let mut progress = |stage: &str, done: usize, total: usize| {
         if bar.message() != stage {
             bar.set_message(stage.to_string());
             bar.set_length(total as u64);
         }
         bar.set_position(done as u64);
+        if !terminal && done % total.div_ceil(10).max(1) == 0 {
+            eprintln!(
+                "dm-diagnose: {stage} {done}/{total} ({:.0} s)",
+                clock.elapsed().as_secs_f64()
+            );
+        }
     };
     let d = diagnose(
         &cli.model_dir,

@@ -14,6 +14,10 @@ use crate::options::{Optimizer, SearchOptions};
 use crate::run::{History, Progress, StageSeconds};
 use crate::world::{PlanningModel, WorldPool, rollout_last};
 
+/// Most host threads MPPI's samples get on the GPU (each holds a world
+/// and waits on its stream).
+const GPU_SAMPLE_THREADS: usize = 64;
+
 /// The rollouts and cost histories of a run's searches.
 pub(crate) struct Search<'a> {
     pub(crate) options: &'a SearchOptions,
@@ -126,12 +130,13 @@ impl<'a> Search<'a> {
             let template = best.clone();
             let clock = std::time::Instant::now();
             // A GPU rollout's thread mostly waits on its stream: a thread
-            // per sample keeps every sample's stream busy at once, more
-            // than the host has cores.
+            // per sample (up to GPU_SAMPLE_THREADS) keeps every sample's
+            // stream busy at once, more than the host has cores.
+            let wanted = o.samples.min(GPU_SAMPLE_THREADS);
             let threads = match self.planning.device() {
-                Device::Cuda if o.samples > rayon::current_num_threads() => Some(
+                Device::Cuda if wanted > rayon::current_num_threads() => Some(
                     rayon::ThreadPoolBuilder::new()
-                        .num_threads(o.samples)
+                        .num_threads(wanted)
                         .build()
                         .map_err(|e| crate::invalid("--samples", e.to_string()))?,
                 ),

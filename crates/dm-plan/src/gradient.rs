@@ -43,21 +43,9 @@ impl Default for GradientOptions {
 }
 
 /// The plan's cost from `start` (the planning model's first frame when
-/// `None`) and its gradient with respect to the knots.
+/// `None`) and its gradient with respect to the knots, in `world`: a world
+/// of `model` at its first frame (new, or kept and started again).
 pub fn cost_and_gradient<T: DeviceReal>(
-    model: &PlanningModel,
-    start: Option<&Particles<T>>,
-    plan: &ActionPlan,
-    cost: &TerminalCost,
-    weights: &CostWeights,
-    window: usize,
-) -> Result<(f64, Vec<f64>), PlanError> {
-    let mut world = model.world::<T>()?;
-    cost_and_gradient_in(&mut world, model, start, plan, cost, weights, window)
-}
-
-/// [`cost_and_gradient`] in `world`, a world of `model` at its first frame.
-fn cost_and_gradient_in<T: DeviceReal>(
     world: &mut PlanningWorld<T>,
     model: &PlanningModel,
     start: Option<&Particles<T>>,
@@ -160,7 +148,7 @@ pub fn refine(
     for iteration in 0..=options.iterations {
         let current = plan.with_params(&params);
         let mut world = worlds.take()?;
-        let outcome = cost_and_gradient_in(
+        let outcome = cost_and_gradient(
             &mut world,
             model,
             start,

@@ -111,20 +111,22 @@ fn knot_gradient_matches_finite_differences(residual: bool, tolerance: f64) {
         .map(|i| 0.01 * ((i as f64) * 0.9 + 0.3).sin())
         .collect();
     plan = plan.with_params(&params);
-    let (_, grad) = cost_and_gradient::<f64>(&planning, None, &plan, &cost, &weights, usize::MAX)
-        .expect("gradient");
-    let value = |p: &[f64]| {
-        cost_and_gradient::<f64>(
-            &planning,
+    // Every substep differentiated, each time in a new f64 world.
+    let exact = |planning: &PlanningModel, plan: &ActionPlan| {
+        let mut world = planning.world::<f64>().expect("world");
+        cost_and_gradient(
+            &mut world,
+            planning,
             None,
-            &plan.with_params(p),
+            plan,
             &cost,
             &weights,
             usize::MAX,
         )
-        .expect("cost")
-        .0
+        .expect("cost and gradient")
     };
+    let (_, grad) = exact(&planning, &plan);
+    let value = |p: &[f64]| exact(&planning, &plan.with_params(p)).0;
     let h = 1e-6;
     let mut largest: f64 = 0.0;
     for i in 0..params.len() {
@@ -146,12 +148,8 @@ fn knot_gradient_matches_finite_differences(residual: bool, tolerance: f64) {
         // The residual must matter: the same plan without it costs differently.
         let physics_only =
             PlanningModel::new(&model, &PlayOptions::interactive()).expect("planning model");
-        let (without, _) =
-            cost_and_gradient::<f64>(&physics_only, None, &plan, &cost, &weights, usize::MAX)
-                .expect("cost");
-        let (with, _) =
-            cost_and_gradient::<f64>(&planning, None, &plan, &cost, &weights, usize::MAX)
-                .expect("cost");
+        let (without, _) = exact(&physics_only, &plan);
+        let (with, _) = exact(&planning, &plan);
         assert!(
             (with - without).abs() > 1e-2 * without.abs(),
             "residual on {with:e}, off {without:e}"

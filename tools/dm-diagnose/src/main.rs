@@ -50,7 +50,7 @@ fn main() -> Result<()> {
             bar.set_length(total as u64);
         }
         bar.set_position(done as u64);
-        if !terminal && done % total.div_ceil(10).max(1) == 0 {
+        if !terminal && done.is_multiple_of(total.div_ceil(10).max(1)) {
             eprintln!(
                 "dm-diagnose: {stage} {done}/{total} ({:.0} s)",
                 clock.elapsed().as_secs_f64()

@@ -376,7 +376,7 @@ pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 const BATCH: usize = 8;
 
 /// `evaluate` on every item in order, [`BATCH`] at a time side by side;
-/// `progress(stage, done, total)` before each batch. The results do not
+/// `progress(done, total)` before each batch. The results do not
 /// depend on the thread count (each world steps the same on any).
 pub(crate) fn in_batches<T: Sync, R: Send>(
     items: &[T],

@@ -125,9 +125,11 @@ pub struct Refined {
     pub rollouts: usize,
 }
 
-/// Adam on the knots of `plan`, kept inside `workspace`; the best iterate wins.
+/// Adam on the knots of `plan`, kept inside `workspace`; the best iterate
+/// wins. Each iterate runs in a world of `worlds` (on the GPU, one whose
+/// graphs are already captured).
 pub fn refine(
-    model: &PlanningModel,
+    worlds: &WorldPool<'_, f32>,
     start: Option<&Particles<f32>>,
     plan: &ActionPlan,
     cost: &TerminalCost,
@@ -142,24 +144,12 @@ pub fn refine(
     let mut v = vec![0.0; params.len()];
     let mut best = (f64::INFINITY, params.clone());
     let mut history = Vec::with_capacity(options.iterations + 1);
-    // One world, started again for each iterate (on the GPU its graphs
-    // are captured once).
-    let worlds = WorldPool::<f32>::new(model)?;
+    let model = worlds.planning();
     for iteration in 0..=options.iterations {
         let current = plan.with_params(&params);
-        let mut world = worlds.take()?;
-        let outcome = cost_and_gradient(
-            &mut world,
-            model,
-            start,
-            &current,
-            cost,
-            weights,
-            options.window,
-        );
-        if outcome.is_ok() {
-            worlds.give_back(world);
-        }
+        let outcome = worlds.with_world(|world| {
+            cost_and_gradient(world, model, start, &current, cost, weights, options.window)
+        });
         let (value, grad) = match outcome {
             Ok(result) => result,
             // A step into a diverging plan ends the refinement; the best

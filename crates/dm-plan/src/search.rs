@@ -22,7 +22,7 @@ const GPU_SAMPLE_THREADS: usize = 64;
 pub(crate) struct Search<'a> {
     pub(crate) options: &'a SearchOptions,
     pub(crate) planning: &'a PlanningModel,
-    /// The worlds MPPI's rollouts run in.
+    /// The worlds the rollouts and the refinement's iterates run in.
     worlds: WorldPool<'a>,
     pub(crate) cost: &'a TerminalCost,
     pub(crate) weights: CostWeights,
@@ -59,13 +59,14 @@ impl<'a> Search<'a> {
         plan: &ActionPlan,
         start: Option<&Particles<f32>>,
     ) -> Result<f64, PlanError> {
-        let mut world = self.worlds.take()?;
-        if let Some(state) = start {
-            world.set_state(state)?;
-        }
-        match rollout_last(&mut world, plan, true) {
+        let last = self.worlds.with_world(|world| {
+            if let Some(state) = start {
+                world.set_state(state)?;
+            }
+            rollout_last(world, plan, true)
+        });
+        match last {
             Ok(last) => {
-                self.worlds.give_back(world);
                 let (value, _) = self.cost.value_and_gradient(&last);
                 let (penalty, _) =
                     crate::cost::plan_penalty(plan, self.planning.frame_dt(), &self.weights);
@@ -163,7 +164,7 @@ impl<'a> Search<'a> {
             };
             let clock = std::time::Instant::now();
             let refined = refine(
-                self.planning,
+                &self.worlds,
                 start,
                 &best,
                 self.cost,

@@ -205,6 +205,26 @@ impl<'a, T: DeviceReal> WorldPool<'a, T> {
         })
     }
 
+    /// The planning model the worlds are of.
+    pub fn planning(&self) -> &'a PlanningModel {
+        self.planning
+    }
+
+    /// `run` in a world at the first frame, which is kept for later when
+    /// `run` succeeds (one that failed is dropped: its device state is not
+    /// trusted).
+    pub fn with_world<R>(
+        &self,
+        run: impl FnOnce(&mut PlanningWorld<T>) -> Result<R, PlanError>,
+    ) -> Result<R, PlanError> {
+        let mut world = self.take()?;
+        let outcome = run(&mut world);
+        if outcome.is_ok() {
+            self.give_back(world);
+        }
+        outcome
+    }
+
     /// A world at the first frame: a kept one started again, or a new one.
     pub fn take(&self) -> Result<PlanningWorld<T>, PlanError> {
         let kept = self
@@ -221,8 +241,7 @@ impl<'a, T: DeviceReal> WorldPool<'a, T> {
         }
     }
 
-    /// Keeps `world` for a later rollout (one that failed is dropped
-    /// instead: its device state is not trusted).
+    /// Keeps `world`, taken from this pool, for a later rollout.
     pub fn give_back(&self, world: PlanningWorld<T>) {
         self.idle
             .lock()
